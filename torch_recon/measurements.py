@@ -1,0 +1,94 @@
+"""Measurements: what preprocessing extracts from the transients, what reconstruction fits.
+
+The interface between `preprocess` (transients -> measurements) and every
+reconstructor (closed-form depth, BF Lidar, the field fit). numpy arrays, saved
+as one .npz; torch is only used by the code that computes or consumes them.
+All positions in the Blender world frame, lengths and optical paths in metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+MEASUREMENTS_VERSION = 1
+
+
+@dataclass
+class SpotMeasurement:
+    spot_id: int
+    first_bounce: np.ndarray          # (3,) l_k, estimated from the first-bounce return
+    laser_direction: np.ndarray       # (3,) unit
+    path_length: np.ndarray           # (H, W) float32 two-bounce optical path (m); NaN where no signal
+    signal: np.ndarray                # (H, W) bool: a two-bounce peak was found (pixel sees l_k: lit)
+    shadow_confidence: np.ndarray     # (H, W) float32 in [0, 1]: max of the normalised matched filter
+    shadow: np.ndarray                # (H, W) bool: confidence below threshold (x_p does not see l_k)
+    excluded: np.ndarray              # (H, W) bool: pixels whose first and second bounce overlap
+                                      # ('parallel' pixels along the laser ray) or are otherwise unusable
+    first_bounce_pixel: tuple | None = None  # (row, col) seeing l_k, when found
+
+
+@dataclass
+class Measurements:
+    width: int
+    height: int
+    fov_rad: float
+    fov_axis: str
+    camera_to_world: np.ndarray       # (4, 4)
+    laser_origin: np.ndarray          # (3,)
+    bin_width_m: float
+    shadow_threshold: float
+    spots: list = field(default_factory=list)   # list[SpotMeasurement]
+    visible_depth: np.ndarray | None = None     # (H, W) range along pixel rays (closed form, fused); NaN = unknown
+    visible_confidence: np.ndarray | None = None  # (H, W) in [0, 1]
+
+    @property
+    def sensor_origin(self) -> np.ndarray:
+        return np.asarray(self.camera_to_world)[:3, 3]
+
+    def save(self, path) -> Path:
+        path = Path(path)
+        arrays = {"version": np.array(MEASUREMENTS_VERSION),
+                  "meta_f": np.array([self.fov_rad, self.bin_width_m, self.shadow_threshold]),
+                  "meta_i": np.array([self.width, self.height]),
+                  "fov_axis": np.array(self.fov_axis), "camera_to_world": self.camera_to_world,
+                  "laser_origin": self.laser_origin}
+        if self.visible_depth is not None:
+            arrays["visible_depth"] = self.visible_depth
+            arrays["visible_confidence"] = self.visible_confidence
+        for k, s in enumerate(self.spots):
+            arrays[f"s{k}_id"] = np.array(s.spot_id)
+            arrays[f"s{k}_fbpix"] = np.array(s.first_bounce_pixel if s.first_bounce_pixel else (-1, -1))
+            for name in ("first_bounce", "laser_direction", "path_length", "signal", "shadow_confidence",
+                         "shadow", "excluded"):
+                arrays[f"s{k}_{name}"] = getattr(s, name)
+        tmp = path.with_name(path.name + ".tmp.npz")
+        np.savez_compressed(tmp, **arrays)
+        tmp.replace(path)
+        return path
+
+    @classmethod
+    def load(cls, path) -> "Measurements":
+        z = np.load(path, allow_pickle=False)
+        if int(z["version"]) != MEASUREMENTS_VERSION:
+            raise ValueError(f"{path}: measurements version {int(z['version'])}, expected {MEASUREMENTS_VERSION}")
+        fov, bw, thr = (float(v) for v in z["meta_f"])
+        w, h = (int(v) for v in z["meta_i"])
+        spots = []
+        k = 0
+        while f"s{k}_id" in z:
+            fb = tuple(int(v) for v in z[f"s{k}_fbpix"])
+            spots.append(SpotMeasurement(
+                spot_id=int(z[f"s{k}_id"]), first_bounce=z[f"s{k}_first_bounce"],
+                laser_direction=z[f"s{k}_laser_direction"], path_length=z[f"s{k}_path_length"],
+                signal=z[f"s{k}_signal"], shadow_confidence=z[f"s{k}_shadow_confidence"],
+                shadow=z[f"s{k}_shadow"], excluded=z[f"s{k}_excluded"],
+                first_bounce_pixel=None if fb[0] < 0 else fb))
+            k += 1
+        return cls(width=w, height=h, fov_rad=fov, fov_axis=str(z["fov_axis"]),
+                   camera_to_world=z["camera_to_world"], laser_origin=z["laser_origin"], bin_width_m=bw,
+                   shadow_threshold=thr, spots=spots,
+                   visible_depth=z["visible_depth"] if "visible_depth" in z else None,
+                   visible_confidence=z["visible_confidence"] if "visible_confidence" in z else None)
