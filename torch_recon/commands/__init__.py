@@ -1,0 +1,1 @@
+"""CLI subcommands of `python -m torch_recon`, one module each (see torch_recon/cli.py)."""
