@@ -37,7 +37,13 @@ def make_synthetic_dataset(root, *, height=6, width=5, bins=40, window_bins=8, s
             depth = rng.uniform(1, 4, (height, width)).astype(np.float32)
             depth[0, 0] = np.inf
             tv_depth = rng.uniform(1, 4, (2, 4, 3)).astype(np.float32)
+            import trimesh
+
+            box = trimesh.creation.box((1.0, 2.0, 0.5))
+            box.apply_translation([0.25, 3.0, -1.0])
+            box.export(w.path("ground_truth/mesh.ply"))
             gt = GroundTruth(train_depth_file=w.write_depth("ground_truth/train_depth.exr", depth),
+                             mesh_file="ground_truth/mesh.ply",
                              test_views=GroundTruthViews(width=3, height=4, fov_rad=1.2, fov_axis="x",
                                                          camera_to_world=[np.eye(4).tolist()] * 2,
                                                          depth_file=w.write_depth("ground_truth/test_depth.exr",

@@ -59,6 +59,7 @@ def export_platonerf(dataset: Dataset | str | os.PathLike, out_dir: str | os.Pat
     extras = {k: v for k, v in m.to_dict().items() if k not in ("spots",)}
     doc = {"camera_angle_x": _camera_angle_x(s), "frames": frames, "platolidar": extras}
     (out / TRANSFORMS).write_text(json.dumps(doc, indent=1))
+    _export_train_gt(ds, out)
     gt = ds.test_views()
     if gt is not None:
         tv, cams, depth = gt
@@ -71,6 +72,48 @@ def export_platonerf(dataset: Dataset | str | os.PathLike, out_dir: str | os.Pat
         (out / TRANSFORMS_TEST).write_text(json.dumps({"camera_angle_x": tv.fov_rad if tv.fov_axis == "x" else None,
                                                        "frames": tframes}, indent=1))
     return out
+
+
+TRAIN_DEPTH_NPY = "ground_truth/train_depth.npy"
+MESH_PLY = "ground_truth/mesh.ply"
+
+
+def _export_train_gt(ds: Dataset, out: Path) -> None:
+    """Train-view range depth as .npy and the GT mesh as .ply, both in the paper's y-up frame."""
+    depth = ds.train_depth()
+    if depth is not None:
+        (out / "ground_truth").mkdir(exist_ok=True)
+        np.save(out / TRAIN_DEPTH_NPY, depth)
+    rel = ds.manifest.ground_truth.mesh_file
+    if rel is not None:
+        import trimesh
+
+        mesh = trimesh.load(ds.path(rel), force="mesh", process=False)
+        mesh.vertices = blender_to_paper_points(mesh.vertices)  # a rotation: winding is kept
+        (out / "ground_truth").mkdir(exist_ok=True)
+        mesh.export(out / MESH_PLY)
+
+
+def _import_train_gt(src: Path, wr: DatasetWriter, sensor: SensorSpec) -> dict:
+    found = {}
+    p = src / TRAIN_DEPTH_NPY
+    if p.is_file():
+        d = np.load(p, allow_pickle=False)
+        if d.shape != (sensor.height, sensor.width):
+            raise DatasetError(str(p), "train depth", f"expected shape {(sensor.height, sensor.width)}, got {d.shape}")
+        found["train_depth_file"] = wr.write_depth("ground_truth/train_depth.exr", d)
+    p = src / MESH_PLY
+    if p.is_file():
+        import trimesh
+
+        try:
+            mesh = trimesh.load(p, force="mesh", process=False)
+        except Exception as exc:
+            raise DatasetError(str(p), "ground-truth mesh", f"not a readable mesh ({exc})") from None
+        mesh.vertices = paper_to_blender_points(mesh.vertices)
+        mesh.export(wr.path("ground_truth/mesh.ply"))
+        found["mesh_file"] = "ground_truth/mesh.ply"
+    return found
 
 
 def _load_cube(path: Path, field: str) -> np.ndarray:
@@ -140,7 +183,8 @@ def import_platonerf(src_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
             raise DatasetError(str(src / fr["file_path"]), f"frames[{i}].file_path",
                                f"shape {cube.shape} differs from the first frame's {cubes[0].shape}")
         cubes.append(cube)
-        spots_meta.append((lo, ld / n, fr.get("platolidar_spot") or {}))
+        # renormalise only when needed, so our own exports round-trip bit-exactly
+        spots_meta.append((lo, ld if abs(n - 1.0) < 1e-9 else ld / n, fr.get("platolidar_spot") or {}))
     h, w, t = cubes[0].shape
     if extras:
         sensor = SensorSpec.from_dict(extras["sensor"], _ck(f), "platolidar.sensor")
@@ -174,6 +218,8 @@ def import_platonerf(src_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
                               first_bounce=None if fb is None else paper_to_blender_points(fb).tolist(),
                               content_hash=meta.get("content_hash")))
         gt = _import_test_views(src, wr, sensor)
+        for name, rel in _import_train_gt(src, wr, sensor).items():
+            setattr(gt, name, rel)
         wr.commit(Manifest(sensor=sensor, spots=spots, layout=layout, noise=noise, ground_truth=gt, provenance=prov))
     return Dataset(out_dir)
 
