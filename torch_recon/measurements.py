@@ -8,12 +8,16 @@ All positions in the Blender world frame, lengths and optical paths in metres.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 MEASUREMENTS_VERSION = 1
+
+
+_OPTIONAL_SPOT_ARRAYS = ("pulse", "first_bounce_path_m", "amplitude", "first_bounce_recorded")
 
 
 @dataclass
@@ -28,6 +32,16 @@ class SpotMeasurement:
     excluded: np.ndarray              # (H, W) bool: pixels whose first and second bounce overlap
                                       # ('parallel' pixels along the laser ray) or are otherwise unusable
     first_bounce_pixel: tuple | None = None  # (row, col) seeing l_k, when found
+    # optional extras (added by preprocess; absent in older files)
+    pulse: np.ndarray | None = None           # (K,) unit-sum pulse template from the first-bounce return
+    first_bounce_path_m: float | None = None  # optical path of the first-bounce return, |l-o| + |l-c|
+    amplitude: np.ndarray | None = None       # (H, W) float32 raw matched-filter peak (signal strength)
+    first_bounce_recorded: np.ndarray | None = None  # (3,) l_k as recorded by the simulator, if any
+
+    @property
+    def usable(self) -> np.ndarray:
+        """(H, W) pixels that carry a measurement (lit or shadow), i.e. not excluded."""
+        return ~np.asarray(self.excluded, bool)
 
 
 @dataclass
@@ -43,6 +57,7 @@ class Measurements:
     spots: list = field(default_factory=list)   # list[SpotMeasurement]
     visible_depth: np.ndarray | None = None     # (H, W) range along pixel rays (closed form, fused); NaN = unknown
     visible_confidence: np.ndarray | None = None  # (H, W) in [0, 1]
+    settings: dict = field(default_factory=dict)  # preprocessing settings used (JSON-able)
 
     @property
     def sensor_origin(self) -> np.ndarray:
@@ -55,6 +70,7 @@ class Measurements:
                   "meta_i": np.array([self.width, self.height]),
                   "fov_axis": np.array(self.fov_axis), "camera_to_world": self.camera_to_world,
                   "laser_origin": self.laser_origin}
+        arrays["settings_json"] = np.array(json.dumps(self.settings))
         if self.visible_depth is not None:
             arrays["visible_depth"] = self.visible_depth
             arrays["visible_confidence"] = self.visible_confidence
@@ -64,6 +80,9 @@ class Measurements:
             for name in ("first_bounce", "laser_direction", "path_length", "signal", "shadow_confidence",
                          "shadow", "excluded"):
                 arrays[f"s{k}_{name}"] = getattr(s, name)
+            for name in _OPTIONAL_SPOT_ARRAYS:
+                if getattr(s, name) is not None:
+                    arrays[f"s{k}_{name}"] = np.asarray(getattr(s, name))
         tmp = path.with_name(path.name + ".tmp.npz")
         np.savez_compressed(tmp, **arrays)
         tmp.replace(path)
@@ -85,10 +104,13 @@ class Measurements:
                 laser_direction=z[f"s{k}_laser_direction"], path_length=z[f"s{k}_path_length"],
                 signal=z[f"s{k}_signal"], shadow_confidence=z[f"s{k}_shadow_confidence"],
                 shadow=z[f"s{k}_shadow"], excluded=z[f"s{k}_excluded"],
-                first_bounce_pixel=None if fb[0] < 0 else fb))
+                first_bounce_pixel=None if fb[0] < 0 else fb,
+                **{name: (z[f"s{k}_{name}"] if name != "first_bounce_path_m" else float(z[f"s{k}_{name}"]))
+                   for name in _OPTIONAL_SPOT_ARRAYS if f"s{k}_{name}" in z}))
             k += 1
         return cls(width=w, height=h, fov_rad=fov, fov_axis=str(z["fov_axis"]),
                    camera_to_world=z["camera_to_world"], laser_origin=z["laser_origin"], bin_width_m=bw,
                    shadow_threshold=thr, spots=spots,
                    visible_depth=z["visible_depth"] if "visible_depth" in z else None,
-                   visible_confidence=z["visible_confidence"] if "visible_confidence" in z else None)
+                   visible_confidence=z["visible_confidence"] if "visible_confidence" in z else None,
+                   settings=json.loads(str(z["settings_json"])) if "settings_json" in z else {})

@@ -1,0 +1,396 @@
+"""Transients -> measurements: first bounce, pulse, time gate, matched filter, sub-bin peaks.
+
+Vectorised torch on CPU or CUDA (`device`); each spot is processed in chunks of
+image rows so a dense 512 x 512 x 391 cube never needs more than one extra copy
+of a chunk. Windowed transients (start bin + G bins per pixel) are used as they
+are: the matched filter runs over the G stored bins only.
+
+Per spot k (paths in metres of optical path, bin centres start_m + (j + 0.5) w):
+1. First bounce l_k: the laser ray o + d * ld is sampled in d; each sample is
+   projected into the image and the transient of that pixel is read at the
+   sample's first-bounce path P(d) = d + |o + d ld - c|. The brightest sample
+   names the pixel seeing l_k; its sub-bin peak P1 gives d in closed form:
+   (P1 - d)^2 = |q + d ld|^2, q = o - c  ->  d = (P1^2 - |q|^2) / (2 (P1 + q.ld)).
+2. Pulse: that pixel's transient around P1, background (median) removed, unit sum.
+3. Time gate: two-bounce paths are >= P1 (triangle inequality), so bins before
+   P1 - (pulse half width) are ignored, as are bins beyond `gate_max_m`.
+4. Matched filter (as the PlatoNeRF code): correlate each pixel with the unit-sum
+   pulse, divide by the pixel's (gated) sum; the maximum is the shadow confidence.
+   Below `shadow_threshold` -> shadow, otherwise the pixel saw l_k (signal).
+5. Sub-bin peak: at the raw maximum next to the matched-filter peak, the 3-bin
+   ratio r = (x+ - x-) / (x- + x0 + x+) is inverted through a lookup table built
+   from a Gaussian pulse model whose width is fitted to the first-bounce return
+   ('lut', exact for noise-free Gaussian pulses); 'gaussian' (log-parabola) and
+   'parabola' fits are available for comparison.
+6. 'Parallel' pixels (the PlatoNeRF filter): pixels whose ray is within
+   asin(parallel_sin) of the direction c -> l_k see the first-bounce return
+   (and its blur) instead of a two-bounce one; they are marked `excluded`.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from .dataset.transient import Transient
+from .frames import camera_ray_directions, focal_length_px
+from .measurements import Measurements, SpotMeasurement
+
+
+class PreprocessError(ValueError):
+    """Input the preprocessing cannot use; the message names the spot and what was expected."""
+
+
+@dataclass
+class PreprocessSettings:
+    shadow_threshold: float = 0.15     # matched-filter confidence below this -> shadow (paper: 0.15)
+    parallel_sin: float = 0.05         # exclude pixels within asin(this) of the ray c -> l (paper: 0.05)
+    refine: str = "lut"                # sub-bin peak: 'lut' | 'gaussian' | 'parabola' | 'none'
+    pulse_half_width_bins: int = 3     # pulse template = 2 h + 1 bins around the first-bounce peak
+    gate_max_m: float | None = None    # ignore returns beyond this optical path (None: end of histogram)
+    background: str = "none"           # 'median': subtract each pixel's median before the filter
+    first_bounce_tolerance_m: float = 0.05  # warn when l differs this much from a recorded first bounce
+    min_first_bounce_snr: float = 5.0  # first-bounce peak must exceed this x the pixel's median (+ floor)
+    chunk_elements: int = 1 << 24      # bins processed per chunk (memory bound)
+    compute_visible_depth: bool = True
+
+    def validate(self):
+        if not 0.0 <= self.shadow_threshold <= 1.0:
+            raise PreprocessError(f"shadow_threshold must be in [0, 1], got {self.shadow_threshold}")
+        if not 0.0 <= self.parallel_sin < 1.0:
+            raise PreprocessError(f"parallel_sin must be in [0, 1), got {self.parallel_sin}")
+        if self.refine not in ("lut", "gaussian", "parabola", "none"):
+            raise PreprocessError(f"refine must be 'lut', 'gaussian', 'parabola' or 'none', got {self.refine!r}")
+        if self.background not in ("none", "median"):
+            raise PreprocessError(f"background must be 'none' or 'median', got {self.background!r}")
+        if self.pulse_half_width_bins < 1:
+            raise PreprocessError("pulse_half_width_bins must be >= 1")
+
+
+def _torch():
+    import torch
+    return torch
+
+
+# ---------------------------------------------------------------- input checks
+
+def check_transient(tr: Transient, sensor, spot_id) -> None:
+    """Refuse a transient that does not fit the sensor: shape, bins, NaN/inf, negatives, all zero."""
+    where = f"spot {spot_id}"
+    if tr.bins != sensor.bins:
+        raise PreprocessError(f"{where}: transient has {tr.bins} bins, the manifest says sensor.bins={sensor.bins}")
+    if tuple(tr.shape) != (sensor.height, sensor.width):
+        raise PreprocessError(f"{where}: transient is {tr.shape[0]}x{tr.shape[1]} pixels, the manifest says "
+                              f"{sensor.height}x{sensor.width} (sensor.height x sensor.width)")
+    w = tr.window
+    finite = np.isfinite(w)
+    if not finite.all():
+        raise PreprocessError(f"{where}: transient has {int((~finite).sum())} NaN or infinite value(s)")
+    if (w < 0).any():
+        raise PreprocessError(f"{where}: transient has {int((w < 0).sum())} negative count(s)")
+    if not w.any():
+        raise PreprocessError(f"{where}: transient is all zeros (no return at all; laser off or hits nothing?)")
+
+
+# ---------------------------------------------------------------- sub-bin peak
+
+def gaussian_bin_profile(offset_bins, sigma_bins, taps: int = 1):
+    """Bin-integrated unit Gaussian centred `offset_bins` from bin 0's centre: values at bins -taps..taps.
+
+    offset and sigma broadcast against each other; the result has one more (last) axis.
+    """
+    from scipy.special import erf
+    j = np.arange(-taps, taps + 1)
+    off = np.asarray(offset_bins, np.float64)[..., None]
+    s = np.maximum(np.asarray(sigma_bins, np.float64), 1e-3)[..., None] * math.sqrt(2.0)
+    return 0.5 * (erf((j + 0.5 - off) / s) - erf((j - 0.5 - off) / s))
+
+
+def fit_pulse_sigma(samples: np.ndarray) -> float:
+    """Width (bins) of the bin-integrated Gaussian best matching a peak's 2t+1 bins (any sub-bin offset)."""
+    y = np.asarray(samples, np.float64)
+    y = y / max(y.sum(), 1e-30)
+    sig = np.linspace(0.05, 4.0, 160)
+    off = np.linspace(-0.5, 0.5, 101)
+    m = gaussian_bin_profile(off[:, None], sig[None, :], taps=len(y) // 2)     # (offsets, sigmas, taps)
+    m = m / np.maximum(m.sum(axis=-1, keepdims=True), 1e-30)
+    err = ((m - y) ** 2).sum(axis=-1).min(axis=0)
+    return float(sig[int(np.argmin(err))])
+
+
+class SubBinLUT:
+    """Inverse of the 3-bin ratio r(offset) = (x+ - x-) / (x- + x0 + x+) of a bin-integrated Gaussian."""
+
+    def __init__(self, sigma_bins: float, n: int = 2001):
+        off = np.linspace(-0.5, 0.5, n)
+        p = gaussian_bin_profile(off, sigma_bins)
+        r = (p[:, 2] - p[:, 0]) / np.maximum(p.sum(axis=1), 1e-30)
+        self.r, self.off = np.maximum.accumulate(r), off   # monotone (flat only at numerical limits)
+        self.sigma_bins = sigma_bins
+
+    def __call__(self, r, torch):
+        rt = torch.as_tensor(self.r, dtype=r.dtype, device=r.device)
+        ot = torch.as_tensor(self.off, dtype=r.dtype, device=r.device)
+        i = torch.searchsorted(rt, r.contiguous()).clamp(1, len(self.r) - 1)
+        r0, r1 = rt[i - 1], rt[i]
+        f = ((r - r0) / (r1 - r0).clamp_min(1e-12)).clamp(0, 1)
+        return ot[i - 1] + f * (ot[i] - ot[i - 1])
+
+
+def subbin_offset(xm, x0, xp, method: str, lut: SubBinLUT | None, torch):
+    """Offset (bins, in [-0.5, 0.5]) of a peak from the centre of its maximum bin x0."""
+    if method == "none":
+        return torch.zeros_like(x0)
+    if method == "lut":
+        return lut((xp - xm) / (xm + x0 + xp).clamp_min(1e-30), torch)
+    if method == "gaussian":
+        lm, l0, lp = (torch.log(v.clamp_min(1e-30)) for v in (xm, x0, xp))
+        den = lm - 2 * l0 + lp
+    else:
+        lm, l0, lp = xm, x0, xp
+        den = xm - 2 * x0 + xp
+    off = torch.where(den < -1e-30, 0.5 * (lm - lp) / den.clamp(max=-1e-30), torch.zeros_like(x0))
+    return off.clamp(-0.5, 0.5)
+
+
+# ---------------------------------------------------------------- first bounce
+
+@dataclass
+class FirstBounce:
+    point: np.ndarray       # l
+    distance: float         # |l - o|
+    path_m: float           # P1 = |l - o| + |l - c|
+    pixel: tuple            # (row, col)
+    pulse: np.ndarray       # (2h + 1,) unit sum
+    pulse_sigma_bins: float
+    peak_bin: int
+
+
+def _read_bins(tr: Transient, rows, cols, bins):
+    """Values of pixels (rows, cols) at absolute bins (0 outside each pixel's window)."""
+    j = bins - tr.start_bin[rows, cols]
+    ok = (j >= 0) & (j < tr.window_bins)
+    out = np.zeros(len(rows), np.float64)
+    out[ok] = tr.window[rows[ok], cols[ok], j[ok]]
+    return out
+
+
+def _pixel_dense(tr: Transient, row, col) -> np.ndarray:
+    out = np.zeros(tr.bins, np.float64)
+    s = int(tr.start_bin[row, col])
+    out[s:s + tr.window_bins] = tr.window[row, col]
+    return out
+
+
+def find_first_bounce(tr: Transient, sensor, laser_direction, spot_id, settings: PreprocessSettings,
+                      method: str | None = None) -> FirstBounce:
+    """Locate l_k from the brightest return along the laser ray (see the module docstring)."""
+    c2w = np.asarray(sensor.camera_to_world, np.float64)
+    c, o = c2w[:3, 3], np.asarray(sensor.laser_origin, np.float64)
+    ld = np.asarray(laser_direction, np.float64)
+    ld = ld / np.linalg.norm(ld)
+    w, h, bw = sensor.width, sensor.height, sensor.bin_width_m
+    f = focal_length_px(w, h, sensor.fov_rad, sensor.fov_axis)
+    q = o - c
+    d_max = 0.5 * (sensor.end_m + np.linalg.norm(q))
+    n = int(min(200_000, max(256, math.ceil(d_max / (0.25 * bw)))))
+    d = np.linspace(1e-3, d_max, n)
+    pts = o + d[:, None] * ld
+    path = d + np.linalg.norm(pts - c, axis=1)
+    pc = (pts - c) @ c2w[:3, :3]               # camera frame: looks down -Z
+    front = pc[:, 2] < -1e-9
+    z = np.where(front, -pc[:, 2], 1.0)
+    col = np.floor(0.5 * w + f * pc[:, 0] / z).astype(np.int64)
+    row = np.floor(0.5 * h - f * pc[:, 1] / z).astype(np.int64)
+    kb = np.floor((path - sensor.start_m) / bw).astype(np.int64)
+    ok = front & (col >= 0) & (col < w) & (row >= 0) & (row < h) & (kb >= 0) & (kb < sensor.bins)
+    if not ok.any():
+        raise PreprocessError(f"spot {spot_id}: the laser ray never crosses the sensor's view within the "
+                              f"histogram range; no first bounce can be seen")
+    row, col, kb = row[ok], col[ok], kb[ok]
+    val = np.max([_read_bins(tr, row, col, np.clip(kb + s, 0, sensor.bins - 1)) for s in (-1, 0, 1)], axis=0)
+    i = int(np.argmax(val))
+    r0, c0 = int(row[i]), int(col[i])
+    x = _pixel_dense(tr, r0, c0)
+    lo, hi = max(int(kb[i]) - 2, 0), min(int(kb[i]) + 3, sensor.bins)
+    k1 = lo + int(np.argmax(x[lo:hi]))
+    floor = float(np.median(x))
+    # noise floor: the spread of the rest of the histogram, plus a tiny absolute floor
+    rest = np.delete(x, np.arange(max(k1 - 3, 0), min(k1 + 4, len(x))))
+    noise = float(np.std(rest)) if rest.size else 0.0
+    weak = x[k1] <= floor + settings.min_first_bounce_snr * max(noise, 1e-12 * max(x[k1], 1e-30))
+    if weak or x[k1] <= 0 or x[k1] < x.max():
+        raise PreprocessError(f"spot {spot_id}: no first-bounce return along the laser ray (brightest sample "
+                              f"{x[k1]:.3g} at pixel row {r0} col {c0} does not stand out of the background "
+                              f"{floor:.3g} +- {noise:.3g}); is the laser spot outside the view or too dim?")
+    hw = settings.pulse_half_width_bins
+    taps = np.arange(k1 - hw, k1 + hw + 1)
+    inside = (taps >= 0) & (taps < len(x))
+    pulse = np.zeros(2 * hw + 1)
+    pulse[inside] = x[taps[inside]]
+    pulse = np.clip(pulse - floor, 0.0, None)
+    pulse /= pulse.sum()
+    sigma = fit_pulse_sigma(pulse[hw - 2:hw + 3]) if hw >= 2 else 0.05
+    torch = _torch()
+    method = method or settings.refine
+    lut = SubBinLUT(sigma) if method == "lut" else None
+    xm, x0, xp = (torch.tensor([x[k] if 0 <= k < len(x) else 0.0]) for k in (k1 - 1, k1, k1 + 1))
+    off = float(subbin_offset(xm, x0, xp, method, lut, torch)[0])
+    p1 = sensor.start_m + (k1 + 0.5 + off) * bw
+    den = 2.0 * (p1 + float(q @ ld))
+    if den <= 1e-9 or p1 * p1 <= q @ q:
+        raise PreprocessError(f"spot {spot_id}: first-bounce path {p1:.4f} m is shorter than the laser-sensor "
+                              f"baseline {np.linalg.norm(q):.4f} m")
+    dist = (p1 * p1 - float(q @ q)) / den
+    return FirstBounce(point=o + dist * ld, distance=dist, path_m=p1, pixel=(r0, c0), pulse=pulse,
+                       pulse_sigma_bins=sigma, peak_bin=k1)
+
+
+# ---------------------------------------------------------------- per spot
+
+def world_pixel_directions(sensor) -> np.ndarray:
+    c2w = np.asarray(sensor.camera_to_world, np.float64)
+    return camera_ray_directions(sensor.width, sensor.height, sensor.fov_rad, sensor.fov_axis) @ c2w[:3, :3].T
+
+
+def parallel_mask(dirs: np.ndarray, c, l, parallel_sin: float) -> np.ndarray:
+    """Pixels looking (almost) along c -> l, where the first-bounce return swamps the two-bounce one."""
+    e = np.asarray(l, np.float64) - np.asarray(c, np.float64)
+    e /= max(np.linalg.norm(e), 1e-12)
+    sin = np.linalg.norm(np.cross(dirs, e), axis=-1)
+    return (sin < parallel_sin) & ((dirs @ e) > 0)
+
+
+def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: PreprocessSettings, device="cpu"):
+    """Per-pixel confidence, raw matched-filter amplitude and sub-bin two-bounce path for one spot."""
+    torch = _torch()
+    h, w, g = tr.window.shape
+    bw = sensor.bin_width_m
+    hw = settings.pulse_half_width_bins
+    gate_lo = max(fb.peak_bin - hw, 0)
+    gate_hi = sensor.bins if settings.gate_max_m is None else \
+        int(np.clip(math.ceil((settings.gate_max_m - sensor.start_m) / bw), 1, sensor.bins))
+    if gate_hi <= gate_lo:
+        raise PreprocessError(f"gate_max_m={settings.gate_max_m} ends before the first-bounce return "
+                              f"({fb.path_m:.3f} m)")
+    pulse = torch.as_tensor(fb.pulse, dtype=torch.float32, device=device)
+    taps = [(j, float(pulse[j])) for j in range(len(fb.pulse)) if fb.pulse[j] > 0]
+    lut = SubBinLUT(fb.pulse_sigma_bins) if settings.refine == "lut" else None
+    dense = tr.is_dense
+    rows_per_chunk = max(1, settings.chunk_elements // max(w * g, 1))
+    conf = np.zeros((h, w), np.float32)
+    amp = np.zeros((h, w), np.float32)
+    path = np.full((h, w), np.nan, np.float32)
+    for r0 in range(0, h, rows_per_chunk):
+        r1 = min(h, r0 + rows_per_chunk)
+        x = torch.from_numpy(np.ascontiguousarray(tr.window[r0:r1])).to(device).reshape(-1, g)
+        if dense:
+            x = x[:, gate_lo:gate_hi]
+            base = torch.full((x.shape[0],), gate_lo, dtype=torch.int64, device=device)
+        else:
+            base = torch.from_numpy(tr.start_bin[r0:r1].reshape(-1)).to(device)
+            absb = base[:, None] + torch.arange(g, device=device)
+            x = x * ((absb >= gate_lo) & (absb < gate_hi))
+        if settings.background == "median":
+            x = (x - x.median(dim=1, keepdim=True).values).clamp_min(0)
+        n, gg = x.shape
+        total = x.sum(dim=1)
+        xp = torch.nn.functional.pad(x, (hw, hw))
+        corr = torch.zeros((n, gg), dtype=x.dtype, device=device)
+        for j, pj in taps:       # correlation with a short pulse: K shifted multiply-adds beat conv1d/FFT here
+            corr.add_(xp[:, j:j + gg], alpha=pj)
+        m, k = corr.max(dim=1)
+        c = torch.where(total > 0, m / total.clamp_min(1e-30), torch.zeros_like(m))
+        # the raw maximum next to the filter peak, then its sub-bin offset from 3 bins
+        idx = k[:, None] + hw + torch.arange(-1, 2, device=device)
+        kk = k + torch.gather(xp, 1, idx).argmax(dim=1) - 1
+        kk = kk.clamp(0, gg - 1)
+        three = torch.gather(xp, 1, kk[:, None] + hw + torch.arange(-1, 2, device=device))
+        off = subbin_offset(three[:, 0], three[:, 1], three[:, 2], settings.refine, lut, torch)
+        p = sensor.start_m + (base + kk).to(torch.float64) * bw + (0.5 + off.to(torch.float64)) * bw
+        conf[r0:r1] = c.reshape(r1 - r0, w).cpu().numpy()
+        amp[r0:r1] = m.reshape(r1 - r0, w).cpu().numpy()
+        path[r0:r1] = p.reshape(r1 - r0, w).to(torch.float32).cpu().numpy()
+    return np.clip(conf, 0.0, 1.0), amp, path
+
+
+def process_spot(tr: Transient, sensor, spot, settings: PreprocessSettings, device="cpu", dirs=None,
+                 recorded_first_bounce=None) -> SpotMeasurement:
+    settings.validate()
+    check_transient(tr, sensor, spot.id)
+    fb = find_first_bounce(tr, sensor, spot.laser_direction, spot.id, settings)
+    rec = recorded_first_bounce if recorded_first_bounce is not None else getattr(spot, "first_bounce", None)
+    if rec is not None:
+        err = float(np.linalg.norm(fb.point - np.asarray(rec, np.float64)))
+        if err > settings.first_bounce_tolerance_m:
+            warnings.warn(f"spot {spot.id}: first bounce estimated from the transient {np.round(fb.point, 4).tolist()} "
+                          f"is {err:.4f} m from the recorded one {np.round(rec, 4).tolist()} "
+                          f"(tolerance {settings.first_bounce_tolerance_m} m)", stacklevel=2)
+    conf, amp, path = matched_filter_spot(tr, sensor, fb, settings, device)
+    if dirs is None:
+        dirs = world_pixel_directions(sensor)
+    c = np.asarray(sensor.camera_to_world, np.float64)[:3, 3]
+    excluded = parallel_mask(dirs, c, fb.point, settings.parallel_sin)
+    excluded[fb.pixel] = True
+    signal = (conf >= settings.shadow_threshold) & ~excluded
+    path = np.where(signal, path, np.nan).astype(np.float32)
+    ld = np.asarray(spot.laser_direction, np.float64)
+    return SpotMeasurement(
+        spot_id=int(spot.id), first_bounce=fb.point.astype(np.float64), laser_direction=ld / np.linalg.norm(ld),
+        path_length=path, signal=signal, shadow_confidence=conf.astype(np.float32),
+        shadow=(~signal) & ~excluded, excluded=excluded, first_bounce_pixel=fb.pixel,
+        pulse=fb.pulse.astype(np.float32), first_bounce_path_m=float(fb.path_m), amplitude=amp,
+        first_bounce_recorded=None if rec is None else np.asarray(rec, np.float64))
+
+
+def preprocess(sensor, spot_transients, settings: PreprocessSettings | None = None, device="cpu",
+               progress: bool = False) -> Measurements:
+    """(Spot, Transient) pairs -> Measurements (with the fused closed-form visible depth)."""
+    settings = settings or PreprocessSettings()
+    settings.validate()
+    dirs = world_pixel_directions(sensor)
+    items = list(spot_transients) if not hasattr(spot_transients, "__len__") else spot_transients
+    it = items
+    if progress:
+        from tqdm import tqdm
+        it = tqdm(items, desc="preprocess", unit="spot")
+    spots = [process_spot(tr, sensor, s, settings, device, dirs) for s, tr in it]
+    if not spots:
+        raise PreprocessError("no enabled spots to preprocess")
+    m = Measurements(width=sensor.width, height=sensor.height, fov_rad=float(sensor.fov_rad),
+                     fov_axis=sensor.fov_axis, camera_to_world=np.asarray(sensor.camera_to_world, np.float64),
+                     laser_origin=np.asarray(sensor.laser_origin, np.float64), bin_width_m=float(sensor.bin_width_m),
+                     shadow_threshold=float(settings.shadow_threshold), spots=spots,
+                     settings=asdict(settings))
+    if settings.compute_visible_depth:
+        from .visible_depth import fuse_visible_depth
+        fused = fuse_visible_depth(m, device=device)
+        m.visible_depth, m.visible_confidence = fused.depth, fused.confidence
+    return m
+
+
+class _LazySpots:
+    """Reads one spot's transient at a time (a 512^2 x 391 cube is 400 MB)."""
+
+    def __init__(self, dataset):
+        self.dataset = dataset
+        self.spots = dataset.manifest.enabled_spots
+
+    def __len__(self):
+        return len(self.spots)
+
+    def __iter__(self):
+        for s in self.spots:
+            yield s, self.dataset.read_transient(s.id)
+
+
+def preprocess_dataset(dataset, settings: PreprocessSettings | None = None, device="cpu",
+                       progress: bool = False) -> Measurements:
+    """Preprocess every enabled spot of a loaded Dataset (transients read one at a time)."""
+    try:
+        return preprocess(dataset.sensor, _LazySpots(dataset), settings, device, progress)
+    except PreprocessError as exc:
+        raise PreprocessError(f"{dataset.root}: {exc}") from None

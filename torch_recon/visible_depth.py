@@ -1,0 +1,103 @@
+"""Visible depth in closed form: each (spot, pixel) path length is an ellipsoid; intersect the pixel ray.
+
+Derivation. Pixel ray x = c + t u (|u| = 1, t > 0: range along the ray). The
+two-bounce path is D = |l - o| + |x - l| + |x - c| = |l - o| + |x - l| + t, so
+with D' = D - |l - o| (the ellipsoid's major axis, foci l and c):
+    |c - l + t u|^2 = (D' - t)^2
+    |c - l|^2 + 2 t u.(c - l) + t^2 = D'^2 - 2 D' t + t^2
+    t = (D'^2 - |c - l|^2) / (2 (D' - u.(l - c))).
+A real ellipsoid needs D' > |c - l|; then the denominator is >= D' - |l - c| > 0
+and D' - t = |D' u - (l - c)|^2 / (2 (D' - u.(l - c))) >= 0, so the squared
+equation has no spurious root. The denominator vanishes only for the pixel
+looking straight at l with D' = |l - c| (every point of the segment c -> l has
+the same path): such pixels are the 'parallel' ones preprocessing excludes, and
+here any denominator below `min_denominator` gives NaN.
+
+Precision. dt/dD' = (2 D' M - N) / (2 M^2) with N, M the numerator and the
+denominator above: a bin of path error moves t by that much. Spots are fused
+per pixel by the median, then the estimates within `inlier_m` of it are
+averaged with weights 1 / (dt/dD')^2 (better-conditioned spots count more).
+Confidence = inliers / spots that measured the pixel (lit or shadow).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class VisibleDepth:
+    depth: np.ndarray        # (H, W) float32 range along the pixel ray; NaN where unknown
+    confidence: np.ndarray   # (H, W) float32 in [0, 1]
+    count: np.ndarray        # (H, W) int: spots giving a valid estimate
+    per_spot: np.ndarray | None = None  # (S, H, W) per-spot estimates (NaN: none)
+
+
+def ellipsoid_range(path, first_bounce, laser_origin, sensor_origin, dirs, min_denominator=1e-6):
+    """Range t along unit rays `dirs` (..., 3) for two-bounce paths `path` (...) (torch tensors).
+
+    NaN where the path is NaN, the ellipsoid is degenerate (D' <= |c - l|) or the
+    denominator is below `min_denominator` (metres). Also returns dt/dD'.
+    """
+    import torch
+    l = torch.as_tensor(first_bounce, dtype=dirs.dtype, device=dirs.device)
+    o = torch.as_tensor(laser_origin, dtype=dirs.dtype, device=dirs.device)
+    c = torch.as_tensor(sensor_origin, dtype=dirs.dtype, device=dirs.device)
+    dp = path - torch.linalg.norm(l - o)
+    lc = l - c
+    n = dp * dp - (lc * lc).sum()
+    m = dp - (dirs * lc).sum(-1)
+    ok = torch.isfinite(dp) & (dp > torch.linalg.norm(lc)) & (m > min_denominator)
+    ms = torch.where(ok, m, torch.ones_like(m))
+    t = torch.where(ok, n / (2 * ms), torch.full_like(m, float("nan")))
+    dt = torch.where(ok, (2 * dp * ms - n) / (2 * ms * ms), torch.full_like(m, float("nan")))
+    return t, dt
+
+
+def fuse_visible_depth(meas, device="cpu", inlier_m: float | None = None, keep_per_spot: bool = False,
+                       dtype=None) -> VisibleDepth:
+    """Fuse the per-spot closed-form ranges of a Measurements into one depth map and confidence."""
+    import torch
+
+    from .frames import pixel_rays
+    dtype = dtype or torch.float64
+    _, dirs = pixel_rays(meas.camera_to_world, meas.width, meas.height, meas.fov_rad, meas.fov_axis)
+    dirs = torch.as_tensor(dirs, dtype=dtype, device=device)
+    c = np.asarray(meas.camera_to_world, np.float64)[:3, 3]
+    inlier_m = meas.bin_width_m if inlier_m is None else inlier_m
+    ts, ws, measured = [], [], []
+    for s in meas.spots:
+        path = torch.as_tensor(np.where(s.signal, s.path_length, np.nan), dtype=dtype, device=device)
+        t, dt = ellipsoid_range(path, s.first_bounce, meas.laser_origin, c, dirs)
+        ts.append(t)
+        ws.append(1.0 / (dt * dt).clamp_min(1e-6))
+        measured.append(torch.as_tensor(~np.asarray(s.excluded, bool), device=device))
+    t = torch.stack(ts)                                    # (S, H, W)
+    w = torch.stack(ws)
+    med = torch.nanmedian(t, dim=0).values                 # NaN where no spot has an estimate
+    inl = torch.isfinite(t) & ((t - med).abs() <= inlier_m)
+    wi = torch.where(inl, w, torch.zeros_like(w))
+    wsum = wi.sum(0)
+    depth = torch.where(wsum > 0, (wi * torch.nan_to_num(t)).sum(0) / wsum.clamp_min(1e-30),
+                        torch.full_like(med, float("nan")))
+    n_meas = torch.stack(measured).sum(0)
+    n_inl = inl.sum(0)
+    conf = torch.where(n_meas > 0, n_inl.to(dtype) / n_meas.clamp_min(1).to(dtype), torch.zeros_like(med))
+    return VisibleDepth(depth=depth.to(torch.float32).cpu().numpy(), confidence=conf.to(torch.float32).cpu().numpy(),
+                        count=torch.isfinite(t).sum(0).cpu().numpy(),
+                        per_spot=t.to(torch.float32).cpu().numpy() if keep_per_spot else None)
+
+
+def visible_points(meas, depth=None, min_confidence: float = 0.0) -> np.ndarray:
+    """World points (N, 3) of pixels with a finite fused depth (and confidence >= min_confidence)."""
+    from .frames import pixel_rays
+    depth = meas.visible_depth if depth is None else depth
+    if depth is None:
+        raise ValueError("measurements carry no visible depth; run preprocess with compute_visible_depth")
+    o, d = pixel_rays(meas.camera_to_world, meas.width, meas.height, meas.fov_rad, meas.fov_axis)
+    ok = np.isfinite(depth)
+    if meas.visible_confidence is not None:
+        ok &= meas.visible_confidence >= min_confidence
+    return (o[ok] + d[ok] * depth[ok, None]).astype(np.float64)
