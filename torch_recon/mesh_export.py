@@ -1,0 +1,202 @@
+"""Occupancy/density volume -> mesh file that Blender imports in place, plus a sidecar JSON.
+
+Pipeline: marching cubes (scikit-image) -> drop small islands (trimesh) -> UV
+unwrap (xatlas) -> .ply / .obj / .glb.
+
+Volume convention: `volume[i, j, k]` is the value at the grid point
+bbox_min + (i, j, k) * (bbox_max - bbox_min) / (shape - 1), world (Blender, Z-up)
+frame; larger values are inside (occupancy probability, density).
+
+Frames on disk, chosen so that Blender's importers with their DEFAULT settings
+put the mesh back where it was reconstructed (checked with bpy 5.0.1 in
+tests/test_eval_mesh_export.py when bpy is available):
+- .ply: Blender world coordinates as they are (the PLY importer's defaults are
+  forward Y, up Z: no conversion);
+- .glb / .gltf: glTF is Y-up; we write (x, z, -y) and Blender's glTF importer
+  converts back (x, -z, y) -> (x, y, z);
+- .obj: the OBJ importer's defaults are forward -Z, up Y (a Y-up file), so .obj
+  is written Y-up like glTF.
+`load_mesh_world` undoes this for any file written here.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+#: Blender world (Z-up) -> Y-up file coordinates (glTF / OBJ default import): (x, y, z) -> (x, z, -y)
+YUP_FROM_BLENDER = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+Y_UP_SUFFIXES = (".glb", ".gltf", ".obj")
+SUPPORTED_SUFFIXES = (".ply", ".glb", ".gltf", ".obj")
+
+
+class MeshExportError(ValueError):
+    """The volume or settings cannot give a mesh; says why."""
+
+
+@dataclass
+class ExportResult:
+    mesh: object                 # trimesh.Trimesh in the Blender world frame (with UVs when unwrapped)
+    paths: list                  # written mesh files
+    sidecar: Path
+    n_vertices: int
+    n_faces: int
+    islands_removed: int
+    seconds: float
+
+
+def _as_numpy(volume) -> np.ndarray:
+    if hasattr(volume, "detach"):
+        volume = volume.detach().cpu().numpy()
+    v = np.asarray(volume, dtype=np.float32)
+    if v.ndim != 3 or min(v.shape) < 2:
+        raise MeshExportError(f"expected a 3-D volume with at least 2 samples per axis, got shape {v.shape}")
+    if not np.all(np.isfinite(v)):
+        raise MeshExportError(f"volume has {int((~np.isfinite(v)).sum())} NaN or infinite value(s)")
+    return v
+
+
+def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: bool = True,
+                     min_island_fraction: float = 0.01):
+    """Marching cubes + small-island removal -> (trimesh.Trimesh in world frame, islands removed)."""
+    import trimesh
+    from skimage.measure import marching_cubes
+
+    v = _as_numpy(volume)
+    lo, hi = np.asarray(bbox_min, np.float64), np.asarray(bbox_max, np.float64)
+    if lo.shape != (3,) or hi.shape != (3,) or not np.all(hi > lo):
+        raise MeshExportError(f"bbox_max {hi.tolist()} must exceed bbox_min {lo.tolist()} on every axis")
+    spacing = (hi - lo) / (np.array(v.shape) - 1)
+    if not (v.min() < level < v.max()):
+        raise MeshExportError(f"level {level} is outside the volume's range [{v.min():.4g}, {v.max():.4g}]: "
+                              f"no surface (nothing occupied, or everything)")
+    origin = lo
+    if close_boundary:   # a surface touching the box is closed instead of left open
+        v = np.pad(v, 1, mode="constant", constant_values=min(float(v.min()), level - 1.0))
+        origin = lo - spacing
+    verts, faces, _, _ = marching_cubes(v, level=level, spacing=tuple(spacing), allow_degenerate=False)
+    mesh = trimesh.Trimesh(verts + origin, faces, process=True)
+    removed = 0
+    if min_island_fraction > 0 and len(mesh.faces):
+        parts = mesh.split(only_watertight=False)
+        if len(parts) > 1:
+            biggest = max(len(p.faces) for p in parts)
+            keep = [p for p in parts if len(p.faces) >= min_island_fraction * biggest]
+            removed = len(parts) - len(keep)
+            mesh = trimesh.util.concatenate(keep)
+    if close_boundary:   # the padded ring lies just outside the box: clamp it onto the box faces
+        mesh.vertices = np.clip(mesh.vertices, lo, hi)
+    return mesh, removed
+
+
+def uv_unwrap(mesh):
+    """xatlas parametrisation; returns a new trimesh with per-vertex UVs (vertices split on seams)."""
+    import trimesh
+    import xatlas
+
+    vmap, idx, uvs = xatlas.parametrize(np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32))
+    return trimesh.Trimesh(np.asarray(mesh.vertices)[vmap], idx, process=False,
+                           visual=trimesh.visual.TextureVisuals(uv=uvs))
+
+
+def _to_file_frame(mesh, suffix: str):
+    out = mesh.copy()
+    if suffix in Y_UP_SUFFIXES:
+        out.vertices = np.asarray(mesh.vertices) @ YUP_FROM_BLENDER.T
+    return out
+
+
+def write_mesh(mesh, path) -> Path:
+    """Write a world-frame mesh so that Blender's default importer places it in place (see module doc)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in SUPPORTED_SUFFIXES:
+        raise MeshExportError(f"{path}: unsupported mesh format {suffix!r}; use one of {list(SUPPORTED_SUFFIXES)}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
+    m = _to_file_frame(mesh, suffix)
+    if suffix == ".obj":   # UVs as 'vt', but no material/texture files beside it (nothing to show in them)
+        from trimesh.exchange.obj import export_obj
+        text, _ = export_obj(m, include_texture=True, return_texture=True, mtl_name=f"{path.stem}.mtl")
+        tmp.write_text("\n".join(ln for ln in text.splitlines() if not ln.startswith(("mtllib", "usemtl"))) + "\n")
+    else:
+        m.export(tmp)
+    tmp.replace(path)
+    return path
+
+
+def load_mesh_world(path):
+    """Read a mesh file (as written here) back into the Blender world frame (trimesh.Trimesh)."""
+    import trimesh
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: mesh file not found")
+    try:
+        mesh = trimesh.load(path, force="mesh", process=False)
+    except Exception as exc:  # noqa: BLE001 - trimesh raises many kinds for bad files
+        raise MeshExportError(f"{path}: cannot read mesh ({exc})") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise MeshExportError(f"{path}: no triangles in the file")
+    if path.suffix.lower() in Y_UP_SUFFIXES:
+        mesh.vertices = np.asarray(mesh.vertices) @ YUP_FROM_BLENDER   # inverse of an orthonormal matrix
+    return mesh
+
+
+def sidecar_path(out_path) -> Path:
+    p = Path(out_path)
+    return p.with_name(p.stem + ".mesh.json")
+
+
+def export_mesh(volume, bbox_min, bbox_max, level, out_path, metadata=None, *, extra_formats=(), uv=True,
+                close_boundary=True, min_island_fraction=0.01, max_uv_faces=400_000) -> ExportResult:
+    """Volume -> mesh file(s) in the Blender world frame + `<stem>.mesh.json` with metadata.
+
+    metadata: JSON-able dict from the caller (method, settings, run time, dataset hash, ...);
+    the sidecar adds level, bbox, grid, counts, frames and timing. extra_formats: more
+    suffixes (e.g. ('.ply', '.obj')) written next to out_path from the same mesh.
+    """
+    t0 = time.perf_counter()
+    out_path = Path(out_path)
+    suffixes = [out_path.suffix.lower()] + [s.lower() if s.startswith(".") else "." + s.lower()
+                                            for s in extra_formats]
+    for s in suffixes:
+        if s not in SUPPORTED_SUFFIXES:
+            raise MeshExportError(f"unsupported mesh format {s!r}; use one of {list(SUPPORTED_SUFFIXES)}")
+    try:
+        json.dumps(metadata or {})
+    except TypeError as exc:
+        raise MeshExportError(f"metadata must be JSON-serialisable: {exc}") from None
+    mesh, removed = mesh_from_volume(volume, bbox_min, bbox_max, level, close_boundary, min_island_fraction)
+    uv_done = False
+    if uv and len(mesh.faces) <= max_uv_faces:
+        mesh = uv_unwrap(mesh)
+        uv_done = True
+    paths = [write_mesh(mesh, out_path.with_suffix(s)) for s in dict.fromkeys(suffixes)]
+    seconds = time.perf_counter() - t0
+    shape = list(np.shape(volume))
+    side = {"metadata": metadata or {},
+            "mesh": {"files": [p.name for p in paths],
+                     "file_frames": {p.name: ("y_up (x, z, -y); Blender's default importer restores Z-up"
+                                              if p.suffix.lower() in Y_UP_SUFFIXES else "blender_world_z_up")
+                                     for p in paths},
+                     "world_frame": "blender_world_z_up", "units": "m",
+                     "n_vertices": int(len(mesh.vertices)), "n_faces": int(len(mesh.faces)),
+                     "bounds_world": np.asarray(mesh.bounds).tolist(), "uv": "xatlas" if uv_done else None,
+                     "islands_removed": int(removed)},
+            "volume": {"shape": shape, "bbox_min": np.asarray(bbox_min, float).tolist(),
+                       "bbox_max": np.asarray(bbox_max, float).tolist(), "level": float(level),
+                       "sample_convention": "grid points span the bbox (corner-aligned)",
+                       "close_boundary": bool(close_boundary), "min_island_fraction": float(min_island_fraction)},
+            "export_seconds": round(seconds, 4),
+            "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+    sc = sidecar_path(out_path)
+    tmp = sc.with_name("." + sc.name + ".partial")
+    tmp.write_text(json.dumps(side, indent=1))
+    tmp.replace(sc)
+    return ExportResult(mesh=mesh, paths=paths, sidecar=sc, n_vertices=len(mesh.vertices), n_faces=len(mesh.faces),
+                        islands_removed=removed, seconds=seconds)
