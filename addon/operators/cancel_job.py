@@ -1,0 +1,32 @@
+"""Cancel the running simulation or reconstruction (same as Esc over the 3D View)."""
+
+import bpy
+from bpy.props import EnumProperty
+
+from .. import jobs
+
+
+class PLATOLIDAR_OT_cancel_job(bpy.types.Operator):
+    """Stop the running background job"""
+
+    bl_idname = "platolidar.cancel_job"
+    bl_label = "Cancel"
+    bl_options = {"REGISTER"}
+
+    kind: EnumProperty(name="Job", items=(("simulation", "Simulation", ""),
+                                          ("reconstruction", "Reconstruction", "")))
+
+    @classmethod
+    def poll(cls, context):
+        if jobs.active("simulation") is None and jobs.active("reconstruction") is None:
+            cls.poll_message_set("Nothing is running")
+            return False
+        return True
+
+    def execute(self, context):
+        job = jobs.active(self.kind)
+        if job is None:
+            self.report({"ERROR"}, f"No {self.kind} is running")
+            return {"CANCELLED"}
+        job.cancel()  # the job's modal operator sees it on its next timer tick and reports
+        return {"FINISHED"}

@@ -1,0 +1,48 @@
+"""Draw N random candidate spots the camera sees and the laser reaches; keep K spread-out ones."""
+
+import bpy
+from bpy.props import BoolProperty
+
+from ..spot_geometry import SpotError, add_spot, random_candidates, select_diverse
+from ._common import has_settings
+
+
+class PLATOLIDAR_OT_generate_spots(bpy.types.Operator):
+    """Random candidate spots in the camera's view (seeded), narrowed to the most spread-out ones"""
+
+    bl_idname = "platolidar.generate_spots"
+    bl_label = "Generate Spots"
+    bl_options = {"REGISTER", "UNDO"}
+
+    replace: BoolProperty(name="Replace", default=True, description="Replace the listed spots")
+
+    @classmethod
+    def poll(cls, context):
+        return has_settings(cls, context)
+
+    def execute(self, context):
+        scene = context.scene
+        s = scene.platolidar
+        if s.random_keep > s.random_candidates:
+            self.report({"ERROR"}, f"Cannot keep {s.random_keep} of {s.random_candidates} candidates")
+            return {"CANCELLED"}
+        try:
+            cands = random_candidates(scene, context.evaluated_depsgraph_get(), s.random_candidates, s.seed)
+        except SpotError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        if not cands:
+            self.report({"ERROR"}, "No surface in the camera's view that the laser can reach")
+            return {"CANCELLED"}
+        keep = select_diverse(cands, s.random_keep, s.seed)
+        if self.replace:
+            s.spots.clear()
+        for i in keep:
+            add_spot(scene, cands[i])
+        msg = f"Kept {len(keep)} of {len(cands)} candidate spots (seed {s.seed})"
+        if len(cands) < s.random_candidates:
+            self.report({"WARNING"}, msg + f"; only {len(cands)} of {s.random_candidates} candidates hit a "
+                                           "surface the laser reaches")
+        else:
+            self.report({"INFO"}, msg)
+        return {"FINISHED"}

@@ -1,0 +1,64 @@
+"""Reconstruct: `python -m torch_recon fit` in the external Python from the preferences."""
+
+import os
+
+import bpy
+
+from .. import _project, jobs
+from ..preferences import get_preferences
+from ._common import UserError, has_settings, resolve_path
+from ._job_base import JobOperatorMixin
+
+MESH_EXTENSIONS = (".ply", ".obj")
+
+
+def newest_mesh(folder: str) -> str | None:
+    """The most recently written mesh under `folder` (the reconstructor's output)."""
+    best = None
+    for root, _dirs, files in os.walk(folder):
+        for name in files:
+            if name.lower().endswith(MESH_EXTENSIONS):
+                p = os.path.join(root, name)
+                if best is None or os.path.getmtime(p) > os.path.getmtime(best):
+                    best = p
+    return best
+
+
+class PLATOLIDAR_OT_reconstruct(JobOperatorMixin, bpy.types.Operator):
+    """Fit geometry to the dataset with torch_recon in the external Python (Esc cancels)"""
+
+    bl_idname = "platolidar.reconstruct"
+    bl_label = "Reconstruct"
+    bl_options = {"REGISTER"}
+
+    job_kind = "reconstruction"
+
+    @classmethod
+    def poll(cls, context):
+        return has_settings(cls, context)
+
+    def build_job(self, context):
+        s = context.scene.platolidar
+        prefs = get_preferences(context)
+        if prefs is None:
+            raise UserError("Add-on preferences unavailable: enable the add-on in Preferences > Add-ons")
+        python = bpy.path.abspath(prefs.python_path) if prefs.python_path else ""
+        paths = _project.reconstruction_pythonpath(prefs.project_dir)
+        ok, msg = jobs.check_reconstruction_python(python, paths)
+        if not ok:
+            raise UserError(msg)
+        dataset = resolve_path(s.recon_dataset_dir or s.output_dir, "dataset folder", context)
+        if not os.path.isfile(os.path.join(dataset, "dataset.json")):
+            raise UserError(f"'{dataset}' is not a dataset (no dataset.json): simulate first or pick the folder")
+        out_dir = resolve_path(s.recon_out_dir, "reconstruction output folder", context)
+        self._out_dir = out_dir
+        return jobs.Job("reconstruction", jobs.reconstruct_command(python, dataset, out_dir, s.recon_mode),
+                        env=jobs.python_env(paths))
+
+    def finish(self, context, job):
+        mesh = newest_mesh(self._out_dir) if os.path.isdir(self._out_dir) else None
+        if mesh is None:
+            raise UserError(f"The reconstructor finished but wrote no .ply/.obj under {self._out_dir}")
+        context.scene.platolidar.import_path = mesh
+        self.report({"INFO"}, f"Reconstructed in {job.elapsed:.0f} s: {mesh} (Import to load it)")
+        return {"FINISHED"}

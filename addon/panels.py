@@ -1,0 +1,183 @@
+"""3D View > Sidebar > Lidar: Sensor (+ Noise & Gating), Spots, Simulate, Reconstruct, Import."""
+
+from __future__ import annotations
+
+import bpy
+
+from . import jobs
+from .config_io import effective_bins, ps_to_m
+
+
+class _LidarPanel:
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Lidar"
+
+    @classmethod
+    def poll(cls, context):
+        return getattr(context.scene, "platolidar", None) is not None
+
+
+def _job_row(layout, kind: str) -> bool:
+    """Progress bar and Cancel button while a job of this kind runs; True when one runs."""
+    job = jobs.active(kind)
+    if job is None:
+        return False
+    row = layout.row(align=True)
+    row.progress(factor=job.progress or 0.0, type="BAR",
+                 text=f"{100 * (job.progress or 0):.0f}%  {job.last_line[:40]}")
+    op = row.operator("platolidar.cancel_job", text="", icon="CANCEL")
+    op.kind = kind
+    return True
+
+
+class PLATOLIDAR_PT_sensor(_LidarPanel, bpy.types.Panel):
+    bl_label = "Sensor"
+    bl_idname = "PLATOLIDAR_PT_sensor"
+
+    def draw(self, context):
+        s = context.scene.platolidar
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        layout.prop(s, "camera")
+        if s.camera is None and context.scene.camera is not None:
+            layout.label(text=f"Using scene camera '{context.scene.camera.name}'", icon="INFO")
+        col = layout.column(align=True)
+        col.prop(s, "width", text="Resolution X")
+        col.prop(s, "height", text="Y")
+        col = layout.column(align=True)
+        col.prop(s, "bin_ps")
+        col.prop(s, "range_mode")
+        col.prop(s, "bins" if s.range_mode == "BINS" else "max_path_m")
+        col.prop(s, "start_m")
+        bins = effective_bins(s)
+        bin_m = ps_to_m(s.bin_ps)
+        layout.label(text=f"{bins} bins of {100 * bin_m:.2f} cm, path to {s.start_m + bins * bin_m:.2f} m")
+        col = layout.column(align=True)
+        col.prop(s, "pulse_fwhm_ps")
+        col.prop(s, "pulse_shape")
+        layout.prop(s, "laser_mode")
+        if s.laser_mode == "OBJECT":
+            layout.prop(s, "laser_object")
+        layout.prop(s, "footprint_radius_m")
+
+
+class PLATOLIDAR_PT_noise(_LidarPanel, bpy.types.Panel):
+    bl_label = "Noise & Gating"
+    bl_idname = "PLATOLIDAR_PT_noise"
+    bl_parent_id = "PLATOLIDAR_PT_sensor"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        s = context.scene.platolidar
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        layout.prop(s, "photon_counts")
+        col = layout.column(align=True)
+        col.prop(s, "photons_per_pixel")
+        col.prop(s, "ambient_per_bin")
+        col.prop(s, "wavelength_filter_factor")
+        col.prop(s, "dark_counts_per_bin")
+        layout.prop(s, "time_gate")
+        sub = layout.column()
+        sub.active = s.time_gate
+        sub.prop(s, "gate_window_bins")
+
+
+class PLATOLIDAR_UL_spots(bpy.types.UIList):
+    """Spot rows: enable toggle, name, target point."""
+
+    def draw_item(self, context, layout, data, item, icon, active_data, active_propname, index=0, flt_flag=0):
+        row = layout.row(align=True)
+        row.prop(item, "enabled", text="")
+        row.prop(item, "name", text="", emboss=False)
+        t = item.target
+        row.label(text=f"{t[0]:.2f}, {t[1]:.2f}, {t[2]:.2f}")
+
+
+class PLATOLIDAR_PT_spots(_LidarPanel, bpy.types.Panel):
+    bl_label = "Spots"
+    bl_idname = "PLATOLIDAR_PT_spots"
+
+    def draw(self, context):
+        s = context.scene.platolidar
+        layout = self.layout
+        layout.prop(s, "spot_source", expand=True)
+        row = layout.row()
+        row.template_list("PLATOLIDAR_UL_spots", "", s, "spots", s, "active_spot_index", rows=4)
+        col = row.column(align=True)
+        col.operator("platolidar.add_spot_cursor", text="", icon="PIVOT_CURSOR")
+        col.operator("platolidar.add_spot_click", text="", icon="RESTRICT_SELECT_OFF")
+        col.operator("platolidar.remove_spot", text="", icon="REMOVE")
+        if 0 <= s.active_spot_index < len(s.spots):
+            layout.prop(s.spots[s.active_spot_index], "target")
+        box = layout.box()
+        row = box.row(align=True)
+        row.prop(s, "random_candidates")
+        row.prop(s, "random_keep")
+        row = box.row(align=True)
+        row.prop(s, "seed")
+        row.operator("platolidar.generate_spots", icon="STICKY_UVS_DISABLE")
+        layout.prop(s, "show_rays")
+
+
+class PLATOLIDAR_PT_simulate(_LidarPanel, bpy.types.Panel):
+    bl_label = "Simulate"
+    bl_idname = "PLATOLIDAR_PT_simulate"
+
+    def draw(self, context):
+        s = context.scene.platolidar
+        layout = self.layout
+        layout.prop(s, "output_dir")
+        col = layout.column(heading="Render", align=True)
+        col.prop(s, "bounces")
+        col.prop(s, "subpixel_samples")
+        col.prop(s, "rgb")
+        col = layout.column(heading="Ground Truth", align=True)
+        col.prop(s, "train_depth")
+        col.prop(s, "gt_mesh")
+        row = col.row(align=True)
+        row.prop(s, "test_views_dolly")
+        row.prop(s, "test_views_orbit")
+        col.prop(s, "test_view_resolution")
+        if not _job_row(layout, "simulation"):
+            layout.operator("platolidar.simulate", icon="RENDER_STILL")
+        row = layout.row(align=True)
+        row.operator("platolidar.export_config", icon="EXPORT")
+        row.operator("platolidar.load_config", icon="IMPORT")
+
+
+class PLATOLIDAR_PT_reconstruct(_LidarPanel, bpy.types.Panel):
+    bl_label = "Reconstruct"
+    bl_idname = "PLATOLIDAR_PT_reconstruct"
+
+    def draw(self, context):
+        s = context.scene.platolidar
+        layout = self.layout
+        layout.prop(s, "recon_dataset_dir")
+        layout.prop(s, "recon_out_dir")
+        layout.prop(s, "recon_mode")
+        if not _job_row(layout, "reconstruction"):
+            layout.operator("platolidar.reconstruct", icon="MESH_ICOSPHERE")
+        layout.operator("platolidar.check_environment", icon="CHECKMARK")
+
+
+class PLATOLIDAR_PT_import(_LidarPanel, bpy.types.Panel):
+    bl_label = "Import"
+    bl_idname = "PLATOLIDAR_PT_import"
+
+    def draw(self, context):
+        s = context.scene.platolidar
+        layout = self.layout
+        layout.prop(s, "import_path")
+        layout.prop(s, "import_color_error")
+        layout.operator("platolidar.import_reconstruction", icon="IMPORT")
+        layout.separator()
+        layout.prop(s, "measurements_path")
+        layout.operator("platolidar.import_visible_depth", icon="OUTLINER_OB_POINTCLOUD")
+
+
+classes = (PLATOLIDAR_UL_spots, PLATOLIDAR_PT_sensor, PLATOLIDAR_PT_noise, PLATOLIDAR_PT_spots,
+           PLATOLIDAR_PT_simulate, PLATOLIDAR_PT_reconstruct, PLATOLIDAR_PT_import)

@@ -1,0 +1,122 @@
+"""Scene settings of the lidar: sensor, noise, gate, spots, job paths (``scene.platolidar``).
+
+Stored in the .blend with the scene. ``config_io`` turns them into a
+``pipeline.config.SimulationConfig``; names match that class where a setting exists there.
+Times in ps (as typed), lengths in metres, as in the config.
+"""
+
+from __future__ import annotations
+
+import bpy
+from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, FloatVectorProperty,
+                       IntProperty, PointerProperty, StringProperty)
+
+
+def _redraw_views(self, context):
+    """Laser rays are drawn from these settings: redraw 3D views when they change."""
+    wm = getattr(context, "window_manager", None)
+    for window in getattr(wm, "windows", ()):
+        for area in window.screen.areas:
+            if area.type == "VIEW_3D":
+                area.tag_redraw()
+
+
+def _is_camera(self, obj):
+    return obj.type == "CAMERA"
+
+
+class PLATOLIDAR_PG_spot(bpy.types.PropertyGroup):
+    # `name` is PropertyGroup's built-in name property (shown and renamed in the list)
+    enabled: BoolProperty(name="Enabled", default=True, description="Simulate this spot", update=_redraw_views)
+    target: FloatVectorProperty(name="Target", size=3, subtype="XYZ", unit="LENGTH", update=_redraw_views,
+                                description="World point the laser is aimed at (where it hits the surface)")
+
+
+class PLATOLIDAR_PG_settings(bpy.types.PropertyGroup):
+    # -- sensor ------------------------------------------------------------------------
+    camera: PointerProperty(name="Lidar Camera", type=bpy.types.Object, poll=_is_camera, update=_redraw_views,
+                            description="Camera that is the lidar's detector (empty: the scene camera)")
+    width: IntProperty(name="Width", default=512, min=1, soft_max=2048, description="Detector pixels across")
+    height: IntProperty(name="Height", default=512, min=1, soft_max=2048, description="Detector pixels down")
+    bin_ps: FloatProperty(name="Bin Width (ps)", default=128.0, min=0.01, soft_max=1000.0,
+                          description="Time bin width in picoseconds")
+    range_mode: EnumProperty(name="Histogram Length", default="BINS",
+                             items=(("BINS", "Bin Count", "Give the number of time bins"),
+                                    ("RANGE", "Maximum Path", "Give the longest optical path to record")))
+    bins: IntProperty(name="Bins", default=391, min=1, soft_max=4096, description="Number of time bins")
+    max_path_m: FloatProperty(name="Max Path", default=15.0, min=0.001, subtype="DISTANCE", unit="LENGTH",
+                              description="Longest optical path (laser to scene to sensor) the histogram covers")
+    start_m: FloatProperty(name="Start", default=0.0, min=0.0, subtype="DISTANCE", unit="LENGTH",
+                           description="Optical path at the start of the first bin")
+    pulse_fwhm_ps: FloatProperty(name="Pulse FWHM (ps)", default=128.0, min=0.01, soft_max=2000.0,
+                                 description="Laser pulse full width at half maximum, in picoseconds")
+    pulse_shape: EnumProperty(name="Pulse Shape", default="gaussian",
+                              items=(("gaussian", "Gaussian", "Gaussian pulse of the given FWHM"),
+                                     ("box", "Box", "All energy in a single bin")))
+    laser_mode: EnumProperty(name="Laser Origin", default="COLOCATED", update=_redraw_views,
+                             items=(("COLOCATED", "Co-located", "Laser at the camera's centre (as in the paper)"),
+                                    ("OBJECT", "Object", "Laser at another object's location")))
+    laser_object: PointerProperty(name="Laser Object", type=bpy.types.Object, update=_redraw_views,
+                                  description="Object whose world location is the laser origin")
+    footprint_radius_m: FloatProperty(name="Footprint Radius", default=0.005, min=1e-5, subtype="DISTANCE",
+                                      unit="LENGTH", description="Radius of the lit laser spot on the surface")
+    # -- noise and gating --------------------------------------------------------------------
+    photon_counts: BoolProperty(name="Photon Counts", default=False,
+                                description="Poisson-sample photon counts instead of expected values")
+    photons_per_pixel: FloatProperty(name="Photons", default=1000.0, min=0.0,
+                                     description="Signal budget: mean photons of the brightest lit pixel")
+    ambient_per_bin: FloatProperty(name="Ambient", default=0.0, min=0.0,
+                                   description="Ambient photons per pixel per bin, before the wavelength filter")
+    wavelength_filter_factor: FloatProperty(name="Wavelength Filter", default=1.0, min=0.0, max=1.0,
+                                            subtype="FACTOR",
+                                            description="Fraction of ambient light passing the band-pass filter")
+    dark_counts_per_bin: FloatProperty(name="Dark Counts", default=0.0, min=0.0,
+                                       description="Detector dark counts per pixel per bin")
+    time_gate: BoolProperty(name="Time Gate", default=False,
+                            description="Keep only a window of bins around the expected return")
+    gate_window_bins: IntProperty(name="Gate Window (bins)", default=32, min=1, description="Bins kept by the gate")
+    # -- what to render ---------------------------------------------------------------------
+    bounces: IntProperty(name="Bounces", default=2, min=2, max=3, description="2, or 3 for third-order light")
+    subpixel_samples: IntProperty(name="Sub-pixel Samples", default=4, min=1, max=64)
+    rgb: BoolProperty(name="RGB Images", default=False, description="Also render RGB images (RGB-shadow baseline)")
+    train_depth: BoolProperty(name="Train-view Depth", default=True, description="Ground-truth depth of the sensor")
+    gt_mesh: BoolProperty(name="Ground-truth Mesh", default=True, description="Export the scene mesh (world frame)")
+    test_views_dolly: IntProperty(name="Dolly Views", default=39, min=0, description="Test views (0: none)")
+    test_views_orbit: IntProperty(name="Orbit Views", default=100, min=0, description="Test views (0: none)")
+    test_view_resolution: IntProperty(name="Test View Size", default=128, min=1)
+    # -- spots --------------------------------------------------------------------------------
+    spot_source: EnumProperty(name="Spots", default="LIST",
+                              items=(("LIST", "Listed", "Simulate the spots in the list"),
+                                     ("RANDOM", "Random at Simulation", "Let the simulator draw random spots")))
+    spots: CollectionProperty(type=PLATOLIDAR_PG_spot)
+    active_spot_index: IntProperty(name="Active Spot", default=0, min=0)
+    random_candidates: IntProperty(name="Candidates", default=24, min=1, description="Random candidate spots")
+    random_keep: IntProperty(name="Keep", default=16, min=1, description="Spots kept by diversity")
+    seed: IntProperty(name="Seed", default=0, min=0, description="Seed of every random choice")
+    show_rays: BoolProperty(name="Show Laser Rays", default=True, update=_redraw_views)
+    # -- jobs -------------------------------------------------------------------------------
+    output_dir: StringProperty(name="Dataset Folder", default="//lidar_dataset", subtype="DIR_PATH",
+                               description="Where the simulation writes the dataset")
+    recon_dataset_dir: StringProperty(name="Dataset", default="", subtype="DIR_PATH",
+                                      description="Dataset to reconstruct (empty: the simulation's folder)")
+    recon_out_dir: StringProperty(name="Output Folder", default="//lidar_recon", subtype="DIR_PATH")
+    recon_mode: EnumProperty(name="Mode", default="fast",
+                             items=(("fast", "Fast", "Grid field fit (default, CPU friendly)"),
+                                    ("platonerf", "PlatoNeRF", "The published NeRF method (slow reference)")))
+    import_path: StringProperty(name="Mesh", default="", subtype="FILE_PATH",
+                                description="Reconstructed mesh (.ply or .obj, Blender world frame)")
+    import_color_error: BoolProperty(name="Colour by Error", default=False,
+                                     description="Colour vertices by distance to the dataset's ground-truth mesh")
+    measurements_path: StringProperty(name="Measurements", default="", subtype="FILE_PATH",
+                                      description="Measurements .npz (torch_recon) with the visible depth")
+
+
+classes = (PLATOLIDAR_PG_spot, PLATOLIDAR_PG_settings)
+
+
+def register_properties():
+    bpy.types.Scene.platolidar = PointerProperty(type=PLATOLIDAR_PG_settings)
+
+
+def unregister_properties():
+    del bpy.types.Scene.platolidar
