@@ -57,6 +57,7 @@ class SimulationConfig:
     time_gate: bool = False
     gate_window_bins: int = 32
     bounces: int = 2                       # 2, or 3 for third-order light (costs more)
+    third_bounce_vpls: int = 16            # with bounces=3: virtual point lights (one render each) per spot
     subpixel_samples: int = 4              # per pixel, for depth edges spanning bins
     rgb: bool = False                      # RGB images for the RGB-shadow baseline
     train_depth: bool = True
@@ -74,7 +75,8 @@ class SimulationConfig:
         def bad(name, msg):
             raise ConfigError(source, name, msg)
 
-        for name in ("width", "height", "bins", "gate_window_bins", "subpixel_samples", "test_view_resolution"):
+        for name in ("width", "height", "bins", "gate_window_bins", "subpixel_samples", "test_view_resolution",
+                     "third_bounce_vpls"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 bad(name, f"expected a positive integer, got {v!r}")

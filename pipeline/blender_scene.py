@@ -1,0 +1,231 @@
+"""Blender side of the scene: build an example scene, read settings, inspect camera and geometry.
+
+Everything here needs bpy. Geometry of the examples comes from pipeline/scenes.py
+so the bpy-free tests see the same triangles.
+"""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+from mathutils import Matrix, Vector
+
+from pipeline.config import CONFIG_TEXT_NAME, ConfigError, SimulationConfig, SpotConfig
+from pipeline.scenes import AreaLight, BlenderPrimitive, ExampleScene, MeshPart
+
+
+class SceneError(RuntimeError):
+    """The scene cannot be simulated (no camera, unsupported camera, ...)."""
+
+
+# -- building the examples ---------------------------------------------------------------
+def diffuse_material(name: str, albedo: float):
+    """A Lambertian material (Diffuse BSDF, roughness 0) of grey albedo."""
+    mat = bpy.data.materials.new(name)
+    mat.use_nodes = True
+    nt = mat.node_tree
+    nt.nodes.clear()
+    bsdf = nt.nodes.new("ShaderNodeBsdfDiffuse")
+    bsdf.inputs["Color"].default_value = (albedo, albedo, albedo, 1.0)
+    bsdf.inputs["Roughness"].default_value = 0.0
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    nt.links.new(bsdf.outputs["BSDF"], out.inputs["Surface"])
+    mat.diffuse_color = (albedo, albedo, albedo, 1.0)
+    return mat
+
+
+def _link(scene, obj):
+    scene.collection.objects.link(obj)
+    return obj
+
+
+def build_example(ex: ExampleScene, config: SimulationConfig | None = None):
+    """Replace the open file by an empty scene holding `ex`; store its settings in the .blend."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.name = ex.name
+    for part in ex.parts:
+        mat = diffuse_material(f"{part.name}_albedo", part.albedo)
+        if isinstance(part, MeshPart):
+            me = bpy.data.meshes.new(part.name)
+            me.from_pydata(part.vertices.tolist(), [], part.faces.tolist())
+            me.update()
+            obj = _link(scene, bpy.data.objects.new(part.name, me))
+        elif isinstance(part, BlenderPrimitive) and part.kind == "monkey":
+            bpy.ops.mesh.primitive_monkey_add(size=2.0 * part.scale, location=part.location)
+            obj = bpy.context.active_object
+            obj.name = part.name
+            mod = obj.modifiers.new("subdivision", "SUBSURF")
+            mod.levels = mod.render_levels = part.subdivisions
+            for poly in obj.data.polygons:
+                poly.use_smooth = True
+        else:
+            raise ValueError(f"unknown part {part!r}")
+        obj.data.materials.append(mat)
+    for light in ex.lights:
+        if isinstance(light, AreaLight):
+            data = bpy.data.lights.new(light.name, "AREA")
+            data.shape, data.size, data.energy = "SQUARE", light.size, light.power_w
+            _link(scene, bpy.data.objects.new(light.name, data)).location = light.location
+    cam = bpy.data.cameras.new("sensor")
+    cam.sensor_fit = "HORIZONTAL" if ex.fov_axis == "x" else "VERTICAL"
+    cam.angle = ex.fov_rad
+    cam.clip_start = 1e-4
+    cam_obj = _link(scene, bpy.data.objects.new("sensor", cam))
+    cam_obj.matrix_world = Matrix(np.asarray(ex.camera_to_world).tolist())
+    scene.camera = cam_obj
+    cfg = config or SimulationConfig()
+    if not cfg.spots:
+        cfg.spots = [SpotConfig(target=list(t), enabled=bool(e), name=f"target_{i:02d}")
+                     for i, (t, e) in enumerate(zip(ex.spot_targets, ex.spot_enabled))]
+    for k, v in ex.config_overrides.items():
+        setattr(cfg, k, v)
+    store_config(cfg)
+    bpy.context.view_layer.update()
+    return scene
+
+
+def store_config(cfg: SimulationConfig):
+    text = bpy.data.texts.get(CONFIG_TEXT_NAME) or bpy.data.texts.new(CONFIG_TEXT_NAME)
+    text.clear()
+    text.write(cfg.to_json())
+
+
+def stored_config() -> SimulationConfig | None:
+    """The settings the add-on stored in the .blend, or None."""
+    text = bpy.data.texts.get(CONFIG_TEXT_NAME)
+    if text is None:
+        return None
+    return SimulationConfig.from_json(text.as_string(), f"{bpy.data.filepath or '<scene>'}:{CONFIG_TEXT_NAME}")
+
+
+# -- preparing a scene for simulation ------------------------------------------------------
+def match_viewport_to_render(scene):
+    """Make viewport visibility and modifier levels equal the render's.
+
+    scene.ray_cast and the ground-truth mesh use the evaluated (viewport)
+    depsgraph; Cycles uses render settings. Only this process's copy of the
+    scene changes (the .blend is never saved). Objects hidden from render are
+    thereby ignored everywhere.
+    """
+    for col in bpy.data.collections:
+        col.hide_viewport = col.hide_render
+    for obj in scene.objects:
+        obj.hide_viewport = obj.hide_render
+        if not obj.hide_render:
+            try:
+                obj.hide_set(False)
+            except RuntimeError:  # not in the view layer
+                pass
+        for mod in getattr(obj, "modifiers", []):
+            mod.show_viewport = mod.show_render
+            if mod.type == "SUBSURF":
+                mod.levels = mod.render_levels
+            elif mod.type == "MULTIRES":
+                mod.levels = mod.render_levels
+    bpy.context.view_layer.update()
+
+
+def sensor_camera(scene, name: str | None):
+    """The camera object to simulate, or SceneError naming what is wrong."""
+    cam = scene.objects.get(name) if name else scene.camera
+    if cam is None:
+        what = f"no object named {name!r}" if name else "the scene has no camera (set one, or name it in 'camera')"
+        raise SceneError(what)
+    if cam.type != "CAMERA":
+        raise SceneError(f"object {cam.name!r} is not a camera")
+    if cam.data.type != "PERSP":
+        raise SceneError(f"camera {cam.name!r}: only perspective cameras are supported, got {cam.data.type}")
+    if abs(cam.data.shift_x) > 1e-9 or abs(cam.data.shift_y) > 1e-9:
+        raise SceneError(f"camera {cam.name!r}: lens shift is not supported (shift_x/shift_y must be 0)")
+    return cam
+
+
+def camera_fov(cam, width: int, height: int):
+    """(field of view in radians, axis 'x' or 'y') as Cycles renders it at width x height."""
+    fit = cam.data.sensor_fit
+    if fit == "AUTO":
+        fit = "HORIZONTAL" if width >= height else "VERTICAL"
+    axis = "x" if fit == "HORIZONTAL" else "y"
+    return float(cam.data.angle_x if axis == "x" else cam.data.angle_y), axis
+
+
+def rigid_c2w(cam) -> np.ndarray:
+    """Camera-to-world without scale (Blender allows scaled camera objects)."""
+    m = np.asarray(cam.matrix_world, np.float64)
+    rot = m[:3, :3]
+    u, _, vt = np.linalg.svd(rot)
+    out = np.eye(4)
+    out[:3, :3] = u @ vt
+    out[:3, 3] = m[:3, 3]
+    return out
+
+
+def ray_cast(scene, depsgraph, origin, direction, max_dist=1e4):
+    """First hit of a ray in the evaluated scene: (point, geometric normal, object) or None."""
+    hit, loc, nrm, index, obj, _ = scene.ray_cast(depsgraph, Vector(origin), Vector(direction), distance=max_dist)
+    if not hit:
+        return None
+    return np.array(loc, np.float64), np.array(nrm, np.float64), obj
+
+
+def object_albedo(obj) -> float | None:
+    """Grey albedo of the object's first material, read from a Diffuse/Principled BSDF (None if unknown)."""
+    mats = [s.material for s in getattr(obj, "material_slots", []) if s.material is not None]
+    if not mats:
+        return None
+    mat = mats[0]
+    if mat.node_tree is not None:
+        for node in mat.node_tree.nodes:
+            key = {"BSDF_DIFFUSE": "Color", "BSDF_PRINCIPLED": "Base Color"}.get(node.type)
+            if key and not node.inputs[key].is_linked:
+                c = node.inputs[key].default_value
+                return float(np.dot([0.2126, 0.7152, 0.0722], list(c)[:3]))
+    return float(np.dot([0.2126, 0.7152, 0.0722], list(mat.diffuse_color)[:3]))
+
+
+def world_triangles(depsgraph):
+    """All render-visible evaluated mesh geometry in the world frame: (vertices, faces, object index per face)."""
+    verts, faces, owner, off = [], [], [], 0
+    names = []
+    for inst in depsgraph.object_instances:
+        obj = inst.object
+        if obj.type not in {"MESH", "CURVE", "SURFACE", "META", "FONT"} or obj.hide_render:
+            continue
+        try:
+            me = obj.to_mesh()
+        except RuntimeError:
+            continue
+        if me is None:
+            continue
+        me.calc_loop_triangles()
+        n_v, n_t = len(me.vertices), len(me.loop_triangles)
+        if n_t:
+            co = np.empty(n_v * 3, np.float32)
+            me.vertices.foreach_get("co", co)
+            tri = np.empty(n_t * 3, np.int32)
+            me.loop_triangles.foreach_get("vertices", tri)
+            m = np.asarray(inst.matrix_world, np.float64)
+            v = co.reshape(-1, 3).astype(np.float64) @ m[:3, :3].T + m[:3, 3]
+            verts.append(v)
+            faces.append(tri.reshape(-1, 3).astype(np.int64) + off)
+            owner.append(np.full(n_t, len(names)))
+            names.append(obj.original.name if obj.original else obj.name)
+            off += n_v
+        obj.to_mesh_clear()
+    if not verts:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64), names
+    return np.concatenate(verts), np.concatenate(faces), np.concatenate(owner), names
+
+
+def scene_lights(scene):
+    """Light objects that would render (the ambient lights of the scene)."""
+    return [o for o in scene.objects if o.type == "LIGHT" and not o.hide_render]
+
+
+def blender_version() -> str:
+    return bpy.app.version_string
+
+
+def config_error_source() -> str:
+    return bpy.data.filepath or "<example scene>"

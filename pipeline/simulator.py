@@ -1,0 +1,326 @@
+"""One simulation run: Blender scene + SimulationConfig -> dataset directory (needs bpy).
+
+Per spot k: l = first hit of the laser ray in the evaluated scene; Cycles renders the
+sensor view lit only by a Lambertian disk at l (direct light only); each sub-pixel
+sample's radiance is binned at |l - o| + |x - l| + |c - x| (x from the Position pass)
+with the laser pulse; the first-bounce return goes to the pixel that sees l; then the
+sensor model. Positions, normals and albedo are spot-independent and rendered once.
+A spot whose content hash (everything that affects its file) matches a spot of the
+dataset already at the output is not rendered again: its file is reused.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import sys
+import time
+from dataclasses import asdict, dataclass
+
+import bpy
+import numpy as np
+
+from pipeline import blender_scene as bs
+from pipeline import ground_truth, sensor_model, spot_selection, third_bounce, transient_binning
+from pipeline.cycles_render import CyclesRenderer
+from torch_recon.dataset import (DatasetError, DatasetWriter, Manifest, NoiseSpec, Provenance, PulseSpec,
+                                 SensorSpec, Spot, TimeGate, TransientLayout, load_dataset, transient_relpath)
+from torch_recon.frames import focal_length_px, project_points
+from torch_recon.units import ps_to_m
+
+SIM_VERSION = "1.0"
+LASER_POWER_W = 1.0          # expected values are in units of this power; the sensor model rescales
+RGB_POWER_W = 100.0          # point light of the RGB-shadow images (exposure only)
+DEFAULT_ALBEDO = 0.8
+
+
+class SimulationError(RuntimeError):
+    """A scene/setting combination that cannot be simulated; the message says which and why."""
+
+
+@dataclass
+class SpotPlan:
+    id: int
+    name: str
+    direction: np.ndarray
+    first_bounce: np.ndarray | None = None
+    normal: np.ndarray | None = None
+    albedo: float = DEFAULT_ALBEDO
+    pixel: tuple | None = None               # (row, col) that sees l, when it is visible
+    first_bounce_radiance: float = 0.0
+
+
+def log(msg: str):
+    print(msg, file=sys.stderr, flush=True)
+
+
+def sensor_spec(cfg, c2w, fov_rad, fov_axis, laser_origin) -> SensorSpec:
+    return SensorSpec(width=cfg.width, height=cfg.height, fov_rad=float(fov_rad), fov_axis=fov_axis,
+                      camera_to_world=np.asarray(c2w).tolist(), laser_origin=[float(v) for v in laser_origin],
+                      pulse=PulseSpec(cfg.pulse_shape, float(cfg.pulse_fwhm_ps)), bin_width_ps=float(cfg.bin_ps),
+                      bin_width_m=float(ps_to_m(cfg.bin_ps)), bins=cfg.bins, start_m=float(cfg.start_m),
+                      time_gate=TimeGate(bool(cfg.time_gate), cfg.gate_window_bins if cfg.time_gate else 0))
+
+
+def noise_spec(cfg) -> NoiseSpec:
+    return NoiseSpec(photon_counts=cfg.photon_counts, photons_per_pixel=float(cfg.photons_per_pixel),
+                     ambient_per_bin=float(cfg.ambient_per_bin),
+                     wavelength_filter_factor=float(cfg.wavelength_filter_factor),
+                     dark_counts_per_bin=float(cfg.dark_counts_per_bin), seed=cfg.seed)
+
+
+# -- spots ---------------------------------------------------------------------------------
+def plan_spots(cfg, scene, depsgraph, sensor, keep_requested: bool) -> list:
+    """Spots to simulate, laser ray cast done (l, normal); misses warned about and dropped."""
+    o = np.asarray(sensor.laser_origin)
+    forward = -np.asarray(sensor.camera_to_world)[:3, 2]
+    rng = np.random.default_rng(cfg.seed)
+    if cfg.spots:
+        plans = []
+        for i, s in enumerate(cfg.spots):
+            d = np.asarray(s.direction if s.direction is not None else np.subtract(s.target, o), np.float64)
+            n = np.linalg.norm(d)
+            if n < 1e-9:
+                raise SimulationError(f"spots[{i}]: the target coincides with the laser origin")
+            d /= n
+            if np.dot(d, forward) <= 1e-6:
+                raise SimulationError(f"spots[{i}] ({s.name or 'unnamed'}): the laser aims behind the sensor "
+                                      f"(direction {np.round(d, 3).tolist()}, sensor looks along "
+                                      f"{np.round(forward, 3).tolist()})")
+            plans.append((SpotPlan(i, s.name or f"spot_{i}", d), s.enabled))
+        pool = [p for p, en in plans if en]
+        if keep_requested and cfg.random_keep > len(pool):
+            pool = [p for p, _ in plans]
+    else:
+        dirs = spot_selection.random_candidate_directions(cfg.random_candidates, rng, sensor)
+        pool = [SpotPlan(i, f"random_{i}", d) for i, d in enumerate(dirs)]
+    hits = []
+    for p in pool:
+        hit = bs.ray_cast(scene, depsgraph, o + 1e-4 * p.direction, p.direction)
+        if hit is None:
+            log(f"warning: spot {p.id} ({p.name}): the laser ray hits nothing; spot skipped")
+            continue
+        p.first_bounce, n_l, obj = hit
+        p.normal = n_l if np.dot(n_l, o - p.first_bounce) >= 0 else -n_l   # the side facing the laser
+        p.albedo = bs.object_albedo(obj) or DEFAULT_ALBEDO
+        hits.append(p)
+    if not hits:
+        raise SimulationError("no laser spot hits the scene (check the spot targets and that the scene has geometry)")
+    if keep_requested or not cfg.spots:
+        k = cfg.random_keep
+        if k < len(hits):
+            idx = spot_selection.select_diverse_spots(np.array([p.first_bounce for p in hits]),
+                                                      np.array([p.normal for p in hits]), k, rng)
+            hits = [hits[int(i)] for i in idx]   # selection order: the first k are a spread-out subset
+        elif k > len(hits):
+            log(f"warning: {k} spots requested, {len(hits)} available")
+    return hits
+
+
+def first_bounce_pixel(p: SpotPlan, sensor, scene, depsgraph, geometry):
+    """Pixel that sees l, albedo at l from the Diffuse Color pass, first-bounce radiance."""
+    c2w = np.asarray(sensor.camera_to_world)
+    c = c2w[:3, 3]
+    col, row, depth = project_points(c2w, sensor.width, sensor.height, sensor.fov_rad, p.first_bounce,
+                                     sensor.fov_axis)
+    if not (depth > 0 and 0 <= col < sensor.width and 0 <= row < sensor.height):
+        log(f"warning: spot {p.id}: l is outside the sensor's view; no first-bounce return recorded")
+        return
+    r, cl = int(row), int(col)
+    pos, _, alb, valid = geometry
+    d = np.linalg.norm(pos[:, r, cl] - p.first_bounce, axis=-1)
+    d[~valid[:, r, cl]] = np.inf
+    dist_lc = float(np.linalg.norm(p.first_bounce - c))
+    f_px = focal_length_px(sensor.width, sensor.height, sensor.fov_rad, sensor.fov_axis)
+    footprint = dist_lc / f_px
+    if d.min() > 2.0 * footprint + 0.01:   # something in front of l: the sensor does not see the spot
+        log(f"warning: spot {p.id}: l is hidden from the sensor; no first-bounce return recorded")
+        return
+    p.albedo = float(np.mean(alb[int(np.argmin(d)), r, cl]))
+    cos_view = abs(float(np.dot(p.normal, (c - p.first_bounce) / max(dist_lc, 1e-9))))
+    a_pix = footprint ** 2 / max(cos_view, 1e-3)
+    p.pixel = (r, cl)
+    p.first_bounce_radiance = (p.albedo / math.pi) * LASER_POWER_W / a_pix
+
+
+def facing_paths(p: SpotPlan, sensor, geometry) -> tuple[np.ndarray, np.ndarray]:
+    """Two-bounce paths (S, H, W) of samples that could be lit by l (facing it), and that mask."""
+    pos, nrm, _, valid = geometry
+    v = p.first_bounce - pos
+    facing = valid & (np.einsum("shwc,shwc->shw", nrm, v) > 0) & (v @ p.normal < 0)
+    paths = transient_binning.optical_path(pos, p.first_bounce, sensor.laser_origin, sensor.sensor_origin)
+    return paths, facing
+
+
+def window_bins_bound(plans, sensor, geometry) -> int:
+    """A window length holding every non-zero bin of every spot (one layout for the dataset).
+
+    Also checks, before any rendering, that every path that could be lit fits the bin range.
+    """
+    kernel = transient_binning.PulseKernel(sensor)
+    spread = 0.0
+    for p in plans:
+        paths, facing = facing_paths(p, sensor, geometry)
+        lit_paths = paths[facing]
+        if lit_paths.size and (lit_paths.max() >= kernel.end_m or lit_paths.min() < kernel.start_m):
+            need = int(math.ceil((lit_paths.max() - sensor.start_m) / sensor.bin_width_m)) + 1
+            raise SimulationError(
+                f"spot {p.id}: optical paths up to {lit_paths.max():.2f} m exceed the bin range "
+                f"[{kernel.start_m:.2f}, {kernel.end_m:.2f}) m; raise 'bins' to at least {need} "
+                f"(--bins) or the bin width (--bin-ps)")
+        hi = np.where(facing, paths, -np.inf).max(axis=0)
+        lo = np.where(facing, paths, np.inf).min(axis=0)
+        ok = np.isfinite(hi)
+        if ok.any():
+            spread = max(spread, float((hi[ok] - lo[ok]).max()))
+    g = int(math.ceil(spread / sensor.bin_width_m)) + kernel.support_bins + 2
+    return min(g, sensor.bins)
+
+
+def geometry_hash(triangles, geometry, albedos) -> str:
+    h = hashlib.sha256()
+    v, f, owner, _ = triangles
+    for a in (np.asarray(v, np.float32), np.asarray(f, np.int64), np.asarray(owner, np.int64),
+              np.asarray(albedos, np.float64), *geometry):
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+def spot_hash(p: SpotPlan, common: dict) -> str:
+    d = dict(common, id=p.id, direction=np.round(p.direction, 9).tolist(),
+             l=np.round(p.first_bounce, 6).tolist(), n=np.round(p.normal, 6).tolist(), albedo=round(p.albedo, 6),
+             pixel=p.pixel, fb=float(f"{p.first_bounce_radiance:.6g}"))
+    return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
+
+
+def _previous_dataset(out):
+    try:
+        return load_dataset(out)
+    except (DatasetError, OSError):
+        return None
+
+
+# -- the run ---------------------------------------------------------------------------------
+def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
+    """Simulate and commit the dataset at out_dir; returns timings and counts."""
+    t_start = time.perf_counter()
+    timings = {}
+    scene = bpy.context.scene
+    bs.match_viewport_to_render(scene)
+    cam = bs.sensor_camera(scene, cfg.camera)
+    fov_rad, fov_axis = bs.camera_fov(cam, cfg.width, cfg.height)
+    c2w = bs.rigid_c2w(cam)
+    if cfg.laser_object:
+        lo = scene.objects.get(cfg.laser_object)
+        if lo is None:
+            raise SimulationError(f"setting 'laser_object': no object named {cfg.laser_object!r} in the scene")
+        laser_origin = np.asarray(lo.matrix_world.translation, np.float64)
+    else:
+        laser_origin = c2w[:3, 3].copy()
+    sensor = sensor_spec(cfg, c2w, fov_rad, fov_axis, laser_origin)
+    noise = noise_spec(cfg)
+    side = math.isqrt(cfg.subpixel_samples)
+    if side * side != cfg.subpixel_samples:
+        raise SimulationError(f"setting 'subpixel_samples': expected a square number (1, 4, 9, ...), "
+                              f"got {cfg.subpixel_samples}")
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    triangles = bs.world_triangles(depsgraph)
+    if len(triangles[1]) == 0:
+        raise SimulationError("the scene has no render-visible mesh geometry")
+    plans = plan_spots(cfg, scene, depsgraph, sensor, keep_requested)
+
+    renderer = CyclesRenderer(scene, cam, cfg.width, cfg.height, side, seed=cfg.seed)
+    try:
+        t0 = time.perf_counter()
+        geometry = renderer.render_geometry()
+        timings["geometry_pass_s"] = time.perf_counter() - t0
+        for p in plans:
+            first_bounce_pixel(p, sensor, scene, depsgraph, geometry)
+        g_bound = window_bins_bound(plans, sensor, geometry)
+        ambient = renderer.render_ambient() if (cfg.ambient_per_bin > 0) else None
+        ambient_scale = None
+        if ambient is not None:
+            valid_px = geometry[3].any(axis=0)
+            mean = float(ambient[valid_px].mean()) if valid_px.any() else 0.0
+            ambient_scale = (ambient / mean if mean > 0 else np.ones_like(ambient)).astype(np.float64)
+        albedos = [bs.object_albedo(bpy.data.objects[n]) or DEFAULT_ALBEDO for n in triangles[3]]
+        common = {"version": SIM_VERSION, "sensor": asdict(sensor), "noise": asdict(noise), "seed": cfg.seed,
+                  "bounces": cfg.bounces, "footprint": cfg.footprint_radius_m, "window_bound": g_bound,
+                  "geometry": geometry_hash(triangles, geometry, albedos),
+                  "ambient": None if ambient_scale is None else hashlib.sha256(ambient_scale.tobytes()).hexdigest()}
+        old = _previous_dataset(out_dir)
+        old_files = {s.content_hash: old.root / s.transient_file for s in old.manifest.spots} if old else {}
+        mesh = ground_truth.scene_mesh(triangles[0], triangles[1])
+        vpl = third_bounce.ThirdBounce(scene, depsgraph, cfg) if cfg.bounces == 3 else None
+
+        with DatasetWriter(out_dir) as writer:
+            spots, rgb_files, layout = [], [], None
+            for k, p in enumerate(plans):
+                t0 = time.perf_counter()
+                h = spot_hash(p, common)
+                rel = transient_relpath(p.id)
+                if h in old_files and old_files[h].is_file():
+                    writer.reuse_file(old_files[h], rel)
+                    what = "unchanged, reused"
+                    lay = old.manifest.layout
+                else:
+                    tr, lay = simulate_spot(p, renderer, sensor, noise, geometry, g_bound, ambient_scale, cfg, vpl)
+                    writer.write_transient(p.id, tr, lay.sample_type)
+                    what = "rendered"
+                if layout is not None and (lay.kind, lay.window_bins) != (layout.kind, layout.window_bins):
+                    raise SimulationError(f"internal: spot {p.id} has layout {lay} unlike {layout}")
+                layout = lay
+                spots.append(Spot(id=p.id, laser_direction=p.direction.tolist(), transient_file=rel,
+                                  first_bounce=p.first_bounce.tolist(), content_hash=h))
+                if cfg.rgb:
+                    rgb_rel = f"rgb/spot_{p.id:04d}.png"
+                    renderer.render_rgb(p.first_bounce + 0.01 * p.normal, RGB_POWER_W * p.albedo,
+                                        str(writer.path(rgb_rel)))
+                    rgb_files.append(rgb_rel)
+                dt = time.perf_counter() - t0
+                timings.setdefault("spot_s", []).append(dt)
+                log(f"spot {k + 1}/{len(plans)} (id {p.id}, {p.name}): l = {np.round(p.first_bounce, 3).tolist()}, "
+                    f"albedo {p.albedo:.2f}, {what} in {dt:.2f} s")
+            t0 = time.perf_counter()
+            gt = ground_truth.write_ground_truth(writer, mesh, sensor, cfg)
+            timings["ground_truth_s"] = time.perf_counter() - t0
+            manifest = Manifest(sensor=sensor, spots=spots, layout=layout, noise=noise, ground_truth=gt,
+                                rgb_files=rgb_files,
+                                provenance=Provenance(generator="pipeline/simulate.py", generator_version=SIM_VERSION,
+                                                      seed=cfg.seed, blender_version=bs.blender_version(),
+                                                      scene=scene_label,
+                                                      extra={"config": cfg.to_dict(), "bounces": cfg.bounces,
+                                                             "subpixel_samples": cfg.subpixel_samples,
+                                                             "laser_power_w": LASER_POWER_W}))
+            writer.commit(manifest)
+    finally:
+        renderer.close()
+    timings["total_s"] = time.perf_counter() - t_start
+    return {"spots": len(plans), "timings": timings}
+
+
+def simulate_spot(p, renderer, sensor, noise, geometry, g_bound, ambient_scale, cfg, vpl):
+    """Render, bin and apply the sensor model for one spot: (Transient, TransientLayout)."""
+    pos, nrm, alb, valid = geometry
+    o, c = np.asarray(sensor.laser_origin), sensor.sensor_origin
+    radiance = renderer.render_emitter(p.first_bounce, p.normal, p.albedo * LASER_POWER_W, cfg.footprint_radius_m,
+                                       name=f"spot_{p.id}")
+    try:
+        expected = transient_binning.bin_two_bounce(pos, radiance, valid, p.first_bounce, o, c, sensor,
+                                                    first_bounce_pixel=p.pixel,
+                                                    first_bounce_radiance=p.first_bounce_radiance)
+        if vpl is not None:
+            vpl.add(expected, p, renderer, sensor, geometry)
+        path = transient_binning.expected_return_path(pos, valid, p.first_bounce, o, c)
+        rng = np.random.default_rng([cfg.seed, p.id])   # per spot: a spot's noise does not depend on the others
+        tr, layout = sensor_model.apply_sensor(expected, sensor, noise, rng, path, first_bounce_pixel=p.pixel,
+                                               ambient_scale=ambient_scale)
+    except ValueError as exc:
+        raise SimulationError(f"spot {p.id}: {exc}") from None
+    if layout.kind == "windowed" and not sensor.time_gate.enabled and layout.window_bins != g_bound:
+        if layout.window_bins > g_bound:
+            raise SimulationError(f"internal: spot {p.id} needs {layout.window_bins} bins > bound {g_bound}")
+        tr = sensor_model.widen_window(tr, g_bound)
+        layout = TransientLayout("windowed" if g_bound < sensor.bins else "dense", g_bound, layout.sample_type)
+    return tr, layout
