@@ -1,0 +1,279 @@
+"""Evaluation shared by every method and benchmark: depth L1 / PSNR on test views, Chamfer, F-score.
+
+Definitions (DESIGN.md section 4; all depths are ranges along the pixel ray, metres):
+- Valid pixels: the ground-truth ray hits something (finite GT range). GT misses
+  (inf, e.g. out of the open front of the room) are excluded and counted.
+- A reconstruction ray that hits nothing counts as depth 0 (what a NeRF's
+  expected depth sum(w t) gives for empty space; the paper rendered depth that
+  way), so a missing surface costs its full GT depth. `miss_depth='max'` uses the
+  test set's largest GT depth instead.
+- depth_l1_m: mean |pred - gt| over all valid pixels of all test views (pooled).
+- depth_psnr_db: 10 log10(1 / MSE) of (pred - gt) / max_gt over the same pooled
+  pixels, max_gt the largest finite GT depth of the test set (peak 1); MSE is
+  floored at 1e-10 (100 dB). depth_psnr_db_view_mean: the mean of per-view PSNRs.
+- chamfer_m: symmetric mean nearest-neighbour distance (not squared) between
+  `n_surface_samples` points sampled (seeded) on each surface:
+  0.5 (mean d(pred -> gt) + mean d(gt -> pred)); with `crop_min/crop_max` both
+  point sets are first cropped to that box (e.g. the object's region).
+- fscore: 2 P R / (P + R) with precision P = share of reconstruction samples
+  within `fscore_threshold_m` of the GT surface, recall R the converse.
+Meshes are rendered by Embree ray casting (trimesh `mesh.ray`, all pixels of a
+view in one call); density fields by volume rendering in torch.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .analytic import range_image
+from .frames import camera_ray_directions
+
+PSNR_MSE_FLOOR = 1e-10
+
+
+@dataclass
+class EvalSettings:
+    fscore_threshold_m: float = 0.05
+    n_surface_samples: int = 200_000
+    miss_depth: str = "zero"          # 'zero' | 'max' (see module doc)
+    seed: int = 0
+    error_images: int = 1             # write a PNG for every n-th test view (0: none)
+    error_vmax_m: float = 0.5         # colour scale of the error images
+    crop_min: tuple | None = None     # optional box for Chamfer / F-score
+    crop_max: tuple | None = None
+    density_samples: int = 192        # volume rendering samples per ray
+    density_min_opacity: float = 0.5  # below this accumulated opacity a density ray counts as a miss
+
+    def validate(self):
+        if self.miss_depth not in ("zero", "max"):
+            raise ValueError(f"miss_depth must be 'zero' or 'max', got {self.miss_depth!r}")
+        if not self.fscore_threshold_m > 0:
+            raise ValueError(f"fscore_threshold_m must be > 0, got {self.fscore_threshold_m}")
+        if self.n_surface_samples < 1:
+            raise ValueError("n_surface_samples must be >= 1")
+
+
+# ---------------------------------------------------------------- rendering
+
+def render_mesh_depth(mesh, c2w, width, height, fov_rad, fov_axis="x") -> np.ndarray:
+    """Range image (H, W) of a trimesh mesh from a camera (Embree); inf where the ray misses."""
+    return range_image(mesh, c2w, width, height, fov_rad, fov_axis).astype(np.float32)
+
+
+def render_density_depth(density, c2w, width, height, fov_rad, bbox_min, bbox_max, fov_axis="x", n_samples=192,
+                         min_opacity=0.5, device="cpu", chunk=1 << 16) -> np.ndarray:
+    """Expected depth of a density field density(xyz (N, 3) torch) -> sigma (N,) along each pixel ray.
+
+    Samples are spaced evenly over the ray's segment inside [bbox_min, bbox_max];
+    depth = sum(w t) / sum(w) where the accumulated opacity sum(w) >= min_opacity,
+    else inf (a miss). Returns (H, W) float32.
+    """
+    import torch
+
+    c2w = np.asarray(c2w, np.float64)
+    dirs = camera_ray_directions(width, height, fov_rad, fov_axis) @ c2w[:3, :3].T
+    d = torch.as_tensor(dirs.reshape(-1, 3), dtype=torch.float32, device=device)
+    o = torch.as_tensor(c2w[:3, 3], dtype=torch.float32, device=device)
+    lo = torch.as_tensor(np.asarray(bbox_min, np.float64), dtype=torch.float32, device=device)
+    hi = torch.as_tensor(np.asarray(bbox_max, np.float64), dtype=torch.float32, device=device)
+    out = torch.full((d.shape[0],), float("inf"), device=device)
+    u = (torch.arange(n_samples, device=device, dtype=torch.float32) + 0.5) / n_samples
+    with torch.no_grad():
+        for s in range(0, d.shape[0], chunk):
+            dd = d[s:s + chunk]
+            inv = 1.0 / torch.where(dd.abs() < 1e-12, torch.full_like(dd, 1e-12), dd)
+            t0, t1 = (lo - o) * inv, (hi - o) * inv
+            tn = torch.minimum(t0, t1).amax(1).clamp_min(0.0)
+            tf = torch.maximum(t0, t1).amin(1)
+            hit = tf > tn
+            t = tn[:, None] + (tf - tn).clamp_min(0)[:, None] * u[None]            # (R, S)
+            delta = ((tf - tn).clamp_min(0) / n_samples)[:, None].expand_as(t)
+            pts = o + dd[:, None, :] * t[..., None]
+            sigma = density(pts.reshape(-1, 3)).reshape(t.shape).clamp_min(0)
+            alpha = 1.0 - torch.exp(-sigma * delta)
+            trans = torch.cumprod(torch.cat([torch.ones_like(alpha[:, :1]), 1.0 - alpha + 1e-10], 1), 1)[:, :-1]
+            w = alpha * trans
+            acc = w.sum(1)
+            dep = (w * t).sum(1) / acc.clamp_min(1e-10)
+            out[s:s + chunk] = torch.where(hit & (acc >= min_opacity), dep, torch.full_like(dep, float("inf")))
+    return out.reshape(height, width).cpu().numpy().astype(np.float32)
+
+
+# ---------------------------------------------------------------- metrics
+
+def depth_metrics(pred, gt, miss_depth: str = "zero") -> dict:
+    """Depth L1 / PSNR over stacks (N, H, W) (see module doc). pred: inf/NaN = reconstruction miss."""
+    pred = np.asarray(pred, np.float64)
+    gt = np.asarray(gt, np.float64)
+    if pred.shape != gt.shape:
+        raise ValueError(f"predicted depth {pred.shape} and ground truth {gt.shape} differ in shape")
+    if pred.ndim == 2:
+        pred, gt = pred[None], gt[None]
+    valid = np.isfinite(gt)
+    if not valid.any():
+        raise ValueError("every ground-truth pixel is a miss (inf): nothing to evaluate")
+    max_gt = float(gt[valid].max())
+    if max_gt <= 0:
+        raise ValueError("ground-truth depths are all zero")
+    miss = ~np.isfinite(pred)
+    filled = np.where(miss, 0.0 if miss_depth == "zero" else max_gt, pred)
+    err = np.where(valid, filled - gt, 0.0)
+    n_valid = int(valid.sum())
+    l1 = float(np.abs(err).sum() / n_valid)
+    mse = float(((err / max_gt) ** 2).sum() / n_valid)
+    per_view_l1, per_view_psnr = [], []
+    for e, v in zip(err, valid):
+        nv = int(v.sum())
+        if nv == 0:
+            per_view_l1.append(None)
+            per_view_psnr.append(None)
+            continue
+        per_view_l1.append(float(np.abs(e).sum() / nv))
+        per_view_psnr.append(_psnr(float(((e / max_gt) ** 2).sum() / nv)))
+    ps = [p for p in per_view_psnr if p is not None]
+    return {"depth_l1_m": l1, "depth_psnr_db": _psnr(mse), "depth_psnr_db_view_mean": float(np.mean(ps)),
+            "max_gt_depth_m": max_gt, "n_valid_pixels": n_valid, "n_excluded_pixels": int((~valid).sum()),
+            "n_reconstruction_misses": int((miss & valid).sum()), "miss_depth": miss_depth,
+            "per_view_l1_m": per_view_l1, "per_view_psnr_db": per_view_psnr}
+
+
+def _psnr(mse: float) -> float:
+    return float(10.0 * math.log10(1.0 / max(mse, PSNR_MSE_FLOOR)))
+
+
+def _sample_surface(mesh, n, seed, crop_min, crop_max):
+    import trimesh
+    pts, _ = trimesh.sample.sample_surface(mesh, n, seed=seed)
+    if crop_min is not None and crop_max is not None:
+        ok = np.all((pts >= np.asarray(crop_min)) & (pts <= np.asarray(crop_max)), axis=1)
+        pts = pts[ok]
+    return pts
+
+
+def surface_metrics(pred_mesh, gt_mesh, threshold_m=0.05, n_samples=200_000, seed=0, crop_min=None,
+                    crop_max=None) -> dict:
+    """Chamfer distance (m) and F-score between two meshes (see module doc)."""
+    from scipy.spatial import cKDTree
+    if pred_mesh is None or len(pred_mesh.faces) == 0:
+        return {"chamfer_m": None, "fscore": 0.0, "precision": 0.0, "recall": 0.0,
+                "fscore_threshold_m": threshold_m, "note": "empty reconstruction"}
+    p = _sample_surface(pred_mesh, n_samples, seed, crop_min, crop_max)
+    g = _sample_surface(gt_mesh, n_samples, seed + 1, crop_min, crop_max)
+    if len(g) == 0:
+        raise ValueError("the ground-truth mesh has no surface inside the crop box")
+    if len(p) == 0:
+        return {"chamfer_m": None, "fscore": 0.0, "precision": 0.0, "recall": 0.0,
+                "fscore_threshold_m": threshold_m, "note": "no reconstruction surface inside the crop box"}
+    d_pg, _ = cKDTree(g).query(p, workers=-1)
+    d_gp, _ = cKDTree(p).query(g, workers=-1)
+    prec = float((d_pg < threshold_m).mean())
+    rec = float((d_gp < threshold_m).mean())
+    f = 0.0 if prec + rec == 0 else 2 * prec * rec / (prec + rec)
+    return {"chamfer_m": float(0.5 * (d_pg.mean() + d_gp.mean())), "fscore": float(f), "precision": prec,
+            "recall": rec, "accuracy_m": float(d_pg.mean()), "completeness_m": float(d_gp.mean()),
+            "fscore_threshold_m": float(threshold_m), "n_samples": [int(len(p)), int(len(g))]}
+
+
+# ---------------------------------------------------------------- images and the whole evaluation
+
+def _colour(x, vmin, vmax, cmap):
+    import matplotlib
+    a = np.clip((np.nan_to_num(x, nan=vmin, posinf=vmax) - vmin) / max(vmax - vmin, 1e-12), 0, 1)
+    rgb = matplotlib.colormaps[cmap](a)[..., :3]
+    rgb[~np.isfinite(x)] = 0.0    # misses / excluded pixels are black
+    return rgb
+
+
+def write_error_image(path, pred, gt, max_depth, vmax_err):
+    """One PNG: GT depth | predicted depth | |error| (black: miss or excluded)."""
+    import matplotlib.pyplot as plt
+    err = np.where(np.isfinite(gt), np.abs(np.where(np.isfinite(pred), pred, 0.0) - gt), np.nan)
+    row = np.concatenate([_colour(gt, 0, max_depth, "viridis"), _colour(pred, 0, max_depth, "viridis"),
+                          _colour(err, 0, vmax_err, "magma")], axis=1)
+    plt.imsave(path, row)
+
+
+def _sample_density_mesh(density, bbox_min, bbox_max, level, res=128, device="cpu"):
+    import torch
+
+    from .mesh_export import mesh_from_volume
+    axes = [torch.linspace(float(a), float(b), res, device=device) for a, b in zip(bbox_min, bbox_max)]
+    grid = torch.stack(torch.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    with torch.no_grad():
+        vol = torch.cat([density(grid[i:i + (1 << 18)]) for i in range(0, len(grid), 1 << 18)]).reshape(res, res, res)
+    return mesh_from_volume(vol, bbox_min, bbox_max, level)[0]
+
+
+def evaluate(dataset, out_dir, mesh=None, density=None, bbox_min=None, bbox_max=None, density_mesh_level=None,
+             settings: EvalSettings | None = None, device="cpu", progress=False, extra=None) -> dict:
+    """Evaluate a reconstruction (a world-frame trimesh mesh, or a density callable + bbox) on a dataset.
+
+    Writes out_dir/report.json and per-view error PNGs (out_dir/views/view_NNNN.png); returns the report.
+    """
+    settings = settings or EvalSettings()
+    settings.validate()
+    if (mesh is None) == (density is None):
+        raise ValueError("give exactly one of mesh= or density=")
+    if density is not None and (bbox_min is None or bbox_max is None):
+        raise ValueError("a density field needs bbox_min and bbox_max")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    report = {"dataset": str(dataset.root), "dataset_hash": dataset.content_hash(),
+              "reconstruction": "mesh" if mesh is not None else "density", "settings": asdict(settings)}
+    tv = dataset.test_views()
+    if tv is None:
+        report.update({"depth_l1_m": None, "depth_psnr_db": None, "n_test_views": 0, "n_excluded_pixels": 0,
+                       "note": "dataset has no ground_truth.test_views: no depth metrics"})
+    else:
+        views, cams, gt = tv
+        preds = np.empty_like(gt)
+        it = range(len(cams))
+        if progress:
+            from tqdm import tqdm
+            it = tqdm(it, desc="render test views", unit="view")
+        for i in it:
+            if mesh is not None:
+                preds[i] = render_mesh_depth(mesh, cams[i], views.width, views.height, views.fov_rad, views.fov_axis)
+            else:
+                preds[i] = render_density_depth(density, cams[i], views.width, views.height, views.fov_rad, bbox_min,
+                                                bbox_max, views.fov_axis, settings.density_samples,
+                                                settings.density_min_opacity, device)
+        dm = depth_metrics(preds, gt, settings.miss_depth)
+        report.update(dm)
+        report["n_test_views"] = int(len(cams))
+        report["test_view_size"] = [views.width, views.height]
+        if settings.error_images > 0:
+            (out_dir / "views").mkdir(exist_ok=True)
+            for i in range(0, len(cams), settings.error_images):
+                write_error_image(out_dir / "views" / f"view_{i:04d}.png", preds[i], gt[i], dm["max_gt_depth_m"],
+                                  settings.error_vmax_m)
+        np.savez_compressed(out_dir / "test_depths.npz", pred=preds, gt=gt)
+    gt_rel = dataset.manifest.ground_truth.mesh_file
+    if gt_rel is None:
+        report.update({"chamfer_m": None, "fscore": None, "surface_note": "dataset has no ground-truth mesh"})
+    else:
+        import trimesh
+        gt_mesh = trimesh.load(dataset.path(gt_rel), force="mesh", process=False)
+        rec = mesh
+        if rec is None and density_mesh_level is not None:
+            rec = _sample_density_mesh(density, bbox_min, bbox_max, density_mesh_level, device=device)
+        if rec is None:
+            report.update({"chamfer_m": None, "fscore": None,
+                           "surface_note": "density without density_mesh_level: no surface metrics"})
+        else:
+            report.update(surface_metrics(rec, gt_mesh, settings.fscore_threshold_m, settings.n_surface_samples,
+                                          settings.seed, settings.crop_min, settings.crop_max))
+    report["eval_seconds"] = round(time.perf_counter() - t0, 3)
+    if extra:
+        report["extra"] = extra
+    tmp = out_dir / ".report.json.partial"
+    tmp.write_text(json.dumps(report, indent=1))
+    tmp.replace(out_dir / "report.json")
+    return report
