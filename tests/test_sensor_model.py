@@ -23,14 +23,18 @@ def pulse_cube(sensor, paths, amps):
     return (wts * np.ravel(amps)[:, None]).reshape(sensor.height, sensor.width, sensor.bins).astype(np.float32)
 
 
-def test_poisson_counts_have_requested_mean_and_variance():
+@pytest.mark.parametrize("signal,background", [(3.0, 0.0), (0.0, 0.8), (1.5, 0.8)])
+def test_poisson_counts_have_requested_mean_and_variance(signal, background):
+    """Signal and background are drawn as separate Poisson parts: each and their sum must be Poisson."""
     s = make_sensor(bins=16)
-    lam = 3.0
-    tr, layout = apply_sensor(np.full((64, 64, 16), lam, np.float32), s, NoiseSpec(photon_counts=True),
-                              np.random.default_rng(0))
+    lam = signal + background
+    tr, layout = apply_sensor(np.full((64, 64, 16), signal, np.float32), s,
+                              NoiseSpec(photon_counts=True, ambient_per_bin=background), np.random.default_rng(0))
     x = tr.window.ravel().astype(np.float64)
     n = x.size
     assert layout.kind == "dense" and np.all(x == np.round(x))
+    per_bin = tr.window.reshape(-1, 16).mean(axis=0)                  # background spread evenly over bins
+    assert np.all(np.abs(per_bin - lam) < 5 * math.sqrt(lam / 4096))
     assert abs(x.mean() - lam) < 5 * math.sqrt(lam / n)
     # dispersion index: sum (x - lam)^2 / lam ~ chi2(n) for Poisson
     z = (np.sum((x - lam) ** 2) / lam - n) / math.sqrt(2 * n)

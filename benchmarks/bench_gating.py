@@ -1,0 +1,200 @@
+"""Time gating and binning benchmark (sensor model of the simulator).
+
+1. SBR gain of the time gate vs window length W at the paper's sensor (391 bins of 128 ps,
+   128 ps FWHM pulse): half the pixels lit by a two-bounce return at a random path, half in
+   shadow, constant ambient background, Poisson counts. Measured: intensity-image SBR
+   (I_lit - I_shadow) / I_shadow with the gate over the same without it; also the supplement's
+   Eq. (3)/(5) form sum(s^2) / (N^2 W) with s and N estimated from the counts. Predicted: T / W,
+   and T / W times the fraction of the pulse inside the window (narrow gates cut the pulse).
+2. Speed at paper scale: bin_two_bounce at 512 x 512 x 391 with S = 4 sub-samples of a smooth
+   synthetic room (fresh output vs a reused buffer), and apply_sensor for three noise settings.
+
+    python benchmarks/bench_gating.py [--resolution 512] [--sbr-pixels 128]
+Writes benchmarks/results/gating.json and benchmarks/results/gating.png.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+
+from benchmarks.common import RESULTS_DIR, machine_info, peak_rss_mb, timer, write_json  # noqa: E402
+from pipeline.sensor_model import apply_sensor  # noqa: E402
+from pipeline.transient_binning import bin_two_bounce, expected_return_path  # noqa: E402
+from torch_recon.analytic import pulse_bin_weights  # noqa: E402
+from torch_recon.dataset import NoiseSpec, SensorSpec, TimeGate  # noqa: E402
+from torch_recon.frames import camera_ray_directions, look_at_c2w  # noqa: E402
+from torch_recon.units import ps_to_m  # noqa: E402
+
+WINDOWS = (1, 2, 3, 4, 6, 8, 16, 32, 64, 128, 256, 391)
+
+
+def sbr_measures(tr, lit, path_bin):
+    """Intensity SBR and the supplement's Eq. (5) SBR from stored counts (lit / shadow pixel masks).
+
+    Eq. (5): sum_t s(t)^2 / (N^2 W), N the background counts per bin (from shadowed pixels),
+    s(t) the mean lit-pixel counts minus N, with every lit pixel's bins aligned on its own return
+    bin `path_bin` (so returns at different paths add up instead of smearing).
+    """
+    img = tr.window.sum(axis=2, dtype=np.float64)
+    bg = img[~lit].mean()
+    intensity = (img[lit].mean() - bg) / bg
+    g = tr.window_bins
+    li = np.flatnonzero(lit.ravel())
+    counts = tr.window.reshape(-1, g)[li].astype(np.float64)
+    rel = tr.start_bin.reshape(-1)[li][:, None] + np.arange(g) - path_bin.reshape(-1)[li][:, None]
+    rel -= rel.min()
+    sums = np.bincount(rel.ravel(), weights=counts.ravel())
+    seen = np.bincount(rel.ravel())
+    n_per_bin = float(tr.window[~lit].mean())
+    s = sums[seen > 0] / seen[seen > 0] - n_per_bin
+    eq5 = float(np.sum(s ** 2) / (n_per_bin ** 2 * g))
+    return float(intensity), eq5
+
+
+def sbr_curve(n_side: int, seed: int = 0) -> list[dict]:
+    t = 391
+    base = dict(width=n_side, height=n_side, bins=t)
+    rng = np.random.default_rng(seed)
+    lit = rng.random((n_side, n_side)) < 0.5
+    # returns at random bins, all at a bin centre: the pulse fraction inside a gate is then the same
+    # for every pixel (one predicted curve)
+    path_bin = rng.integers(60, 330, (n_side, n_side))
+    paths = (path_bin + 0.5) * ps_to_m(128.0)
+    sensor = SensorSpec(**base)
+    wts = pulse_bin_weights(paths.ravel(), 0.0, sensor.bin_width_m, t, ps_to_m(128.0))
+    expected = (wts * lit.ravel()[:, None]).reshape(n_side, n_side, t).astype(np.float32)
+    noise = NoiseSpec(photon_counts=True, photons_per_pixel=20.0, ambient_per_bin=1.0, wavelength_filter_factor=0.1)
+    ungated, _ = apply_sensor(expected, sensor, noise, np.random.default_rng(seed + 1))
+    ref_int, ref_eq5 = sbr_measures(ungated, lit, path_bin)
+    rows = []
+    for w in WINDOWS:
+        s = SensorSpec(**base, time_gate=TimeGate(True, w))
+        tr, _ = apply_sensor(expected, s, noise, np.random.default_rng(seed + 1), expected_path=paths)
+        g_int, g_eq5 = sbr_measures(tr, lit, path_bin)
+        # fraction of the pulse inside each lit pixel's gate (signal the gate cuts away)
+        idx = tr.start_bin[lit][:, None] + np.arange(w)
+        kept = float(np.take_along_axis(wts[lit.ravel()], idx, axis=1).sum(axis=1).mean())
+        rows.append({"window_bins": w, "predicted_gain": t / w, "predicted_gain_pulse_cut": t / w * kept,
+                     "pulse_fraction_in_window": kept, "measured_gain_intensity": g_int / ref_int,
+                     "measured_gain_eq5": g_eq5 / ref_eq5, "sbr_intensity": g_int, "sbr_eq5": g_eq5})
+    return rows, {"ungated_sbr_intensity": ref_int, "ungated_sbr_eq5": ref_eq5, "pixels": int(lit.size),
+                  "lit_pixels": int(lit.sum()), "photons_per_pixel": 20.0,
+                  "background_per_bin": noise.ambient_per_bin * noise.wavelength_filter_factor, "bins": t}
+
+
+def room_samples(sensor, subpixel=2, lo=(-2.0, -1.0, -1.5), hi=(2.0, 4.5, 1.5)):
+    """Sub-pixel world positions and normals of a box room seen from inside (smooth, with corners)."""
+    c2w = np.asarray(sensor.camera_to_world)
+    c = c2w[:3, 3]
+    g = (np.arange(subpixel) + 0.5) / subpixel - 0.5
+    offs = np.stack(np.meshgrid(g, g, indexing="xy"), -1).reshape(-1, 2)
+    d = camera_ray_directions(sensor.width, sensor.height, sensor.fov_rad, sensor.fov_axis, offs) @ c2w[:3, :3].T
+    lo, hi = np.asarray(lo), np.asarray(hi)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tb = np.where(d > 0, (hi - c) / d, (lo - c) / d)
+    tb[~np.isfinite(tb)] = np.inf
+    ax = np.argmin(tb, -1)
+    x = c + np.take_along_axis(tb, ax[..., None], -1) * d
+    n = np.zeros_like(x)
+    np.put_along_axis(n, ax[..., None], -np.sign(np.take_along_axis(d, ax[..., None], -1)), -1)
+    return x.astype(np.float32), n
+
+
+def speed(res: int, repeats: int = 3) -> dict:
+    sensor = SensorSpec(width=res, height=res, camera_to_world=look_at_c2w((0, 0, 0), (0, 1, 0)).tolist())
+    x, n = room_samples(sensor)
+    l, nl = np.array([0.5, 4.5, 0.2]), np.array([0.0, -1.0, 0.0])
+    v = l - x
+    r = np.linalg.norm(v, axis=-1)
+    u = v / np.maximum(r, 1e-9)[..., None]
+    rad = (np.clip(np.sum(n * u, -1), 0, None) * np.clip(-(u @ nl), 0, None) / np.maximum(r, 1e-3) ** 2)
+    rad = rad.astype(np.float32)
+    valid = np.ones(rad.shape, bool)
+    o = np.zeros(3)
+    with timer() as t_first:
+        cube = bin_two_bounce(x, rad, valid, l, o, o, sensor)
+    reuse = []
+    for _ in range(repeats):
+        with timer() as t:
+            bin_two_bounce(x, rad, valid, l, o, o, sensor, out=cube)
+        reuse.append(t.seconds)
+    path = expected_return_path(x, valid, l, o, o)
+    out = {"resolution": res, "subsamples": int(x.shape[0]), "bins": sensor.bins,
+           "bin_first_call_s": t_first.seconds, "bin_reused_buffer_s_median": statistics.median(reuse),
+           "bin_reused_buffer_s_all": reuse}
+    settings = {
+        "expected_values": (NoiseSpec(), TimeGate()),
+        "poisson_gate32": (NoiseSpec(photon_counts=True, photons_per_pixel=1000.0, ambient_per_bin=0.05),
+                           TimeGate(True, 32)),
+        "poisson_ambient_dense": (NoiseSpec(photon_counts=True, photons_per_pixel=1000.0, ambient_per_bin=0.05),
+                                  TimeGate()),
+    }
+    for name, (noise, gate) in settings.items():
+        s = SensorSpec(**{**sensor.__dict__, "time_gate": gate})
+        with timer() as t:
+            tr, layout = apply_sensor(cube, s, noise, np.random.default_rng(0), expected_path=path)
+        out[f"sensor_{name}_s"] = t.seconds
+        out[f"sensor_{name}_window_bins"] = layout.window_bins
+        del tr
+    out["peak_rss_mb"] = peak_rss_mb()
+    return out
+
+
+def plot(rows, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    w = [r["window_bins"] for r in rows]
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    ax.loglog(w, [r["predicted_gain"] for r in rows], "k--", label="predicted T/W")
+    ax.loglog(w, [r["predicted_gain_pulse_cut"] for r in rows], "k:", label="T/W x pulse fraction in window")
+    ax.loglog(w, [r["measured_gain_intensity"] for r in rows], "o-", label="measured (intensity SBR)")
+    ax.loglog(w, [r["measured_gain_eq5"] for r in rows], "s-", mfc="none", label="measured (supplement Eq. 5)")
+    ax.set_xlabel("gate window W (bins of 128 ps)")
+    ax.set_ylabel("SBR gain over ungated (T = 391 bins)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--resolution", type=int, default=512, help="binning benchmark resolution (default 512)")
+    ap.add_argument("--sbr-pixels", type=int, default=128, help="side of the SBR test image (default 128)")
+    ap.add_argument("--out", default=str(RESULTS_DIR), help="results folder")
+    args = ap.parse_args(argv)
+    info = machine_info()
+    print("machine:", ", ".join(f"{k}={v}" for k, v in info.items()))
+    rows, ref = sbr_curve(args.sbr_pixels)
+    print(f"\nSBR gain of the time gate ({ref['pixels']} pixels, {ref['photons_per_pixel']:g} signal photons per lit "
+          f"pixel, {ref['background_per_bin']:g} background photons per bin, Poisson)")
+    print(f"ungated SBR: intensity {ref['ungated_sbr_intensity']:.4f}, Eq.5 {ref['ungated_sbr_eq5']:.5f}")
+    print(f"{'W':>4} {'T/W':>8} {'T/W*cut':>8} {'meas(int)':>10} {'meas(eq5)':>10} {'int/pred':>9}")
+    for r in rows:
+        print(f"{r['window_bins']:>4} {r['predicted_gain']:>8.2f} {r['predicted_gain_pulse_cut']:>8.2f} "
+              f"{r['measured_gain_intensity']:>10.2f} {r['measured_gain_eq5']:>10.2f} "
+              f"{r['measured_gain_intensity'] / r['predicted_gain_pulse_cut']:>9.3f}")
+    sp = speed(args.resolution)
+    print(f"\nbinning {sp['resolution']}x{sp['resolution']}x{sp['bins']}, S={sp['subsamples']}: first call "
+          f"{sp['bin_first_call_s']:.3f} s (fresh 400 MB cube), reused buffer {sp['bin_reused_buffer_s_median']:.3f} s")
+    for name in ("expected_values", "poisson_gate32", "poisson_ambient_dense"):
+        print(f"apply_sensor {name:<22} {sp[f'sensor_{name}_s']:.3f} s  (window {sp[f'sensor_{name}_window_bins']} bins)")
+    print(f"peak RSS {sp['peak_rss_mb']:.0f} MiB")
+    out = Path(args.out)
+    write_json(out / "gating.json", {"machine": info, "sbr": {"reference": ref, "rows": rows}, "speed": sp})
+    plot(rows, out / "gating.png")
+    print(f"wrote {out / 'gating.json'} and {out / 'gating.png'}")
+
+
+if __name__ == "__main__":
+    main()
