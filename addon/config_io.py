@@ -9,6 +9,7 @@ every save, so both always agree.
 from __future__ import annotations
 
 import math
+from dataclasses import fields
 
 import bpy
 from bpy.app.handlers import persistent
@@ -21,12 +22,13 @@ from torch_recon.units import ps_to_m  # noqa: E402
 
 SOURCE = "Lidar panel"
 
-# Settings copied one to one between the PropertyGroup and SimulationConfig
-_DIRECT = ("width", "height", "bin_ps", "start_m", "pulse_fwhm_ps", "pulse_shape", "footprint_radius_m",
-           "photon_counts", "photons_per_pixel", "ambient_per_bin", "wavelength_filter_factor",
-           "dark_counts_per_bin", "time_gate", "gate_window_bins", "bounces", "subpixel_samples", "rgb",
-           "train_depth", "test_views_dolly", "test_views_orbit", "test_view_resolution", "gt_mesh",
-           "random_candidates", "random_keep", "seed")
+# Settings copied one to one between the PropertyGroup and SimulationConfig (those this config version has)
+_DIRECT = tuple(n for n in (
+    "width", "height", "bin_ps", "start_m", "pulse_fwhm_ps", "pulse_shape", "footprint_radius_m",
+    "photon_counts", "photons_per_pixel", "ambient_per_bin", "wavelength_filter_factor", "dark_counts_per_bin",
+    "time_gate", "gate_window_bins", "bounces", "third_bounce_vpls", "rgb", "train_depth", "test_views_dolly",
+    "test_views_orbit", "test_view_resolution", "gt_mesh", "random_candidates", "random_keep", "seed")
+    if n in {f.name for f in fields(SimulationConfig)})
 
 
 def effective_bins(s) -> int:
@@ -55,6 +57,7 @@ def settings_to_config(scene, strict: bool = True) -> SimulationConfig:
     s = scene.platolidar
     cfg = SimulationConfig(**{name: getattr(s, name) for name in _DIRECT})
     cfg.bins = effective_bins(s)
+    cfg.subpixel_samples = s.subpixel_grid ** 2  # the simulator samples a square grid
     cam = lidar_camera(scene)
     if s.camera is not None and s.camera.type != "CAMERA":
         raise ConfigError(SOURCE, "camera", f"object '{s.camera.name}' is not a camera")
@@ -77,20 +80,25 @@ def settings_to_config(scene, strict: bool = True) -> SimulationConfig:
 
 
 def config_to_settings(cfg: SimulationConfig, scene) -> None:
-    """Load a SimulationConfig into the panel (e.g. from an exported JSON)."""
+    """Load a SimulationConfig into the panel (e.g. from an exported JSON); checks before changing anything."""
+    side = math.isqrt(cfg.subpixel_samples)
+    if side * side != cfg.subpixel_samples or not 1 <= side <= 8:
+        raise ConfigError(SOURCE, "subpixel_samples", f"expected a square number from 1 to 64, got "
+                                                      f"{cfg.subpixel_samples}")
+    for i, sc in enumerate(cfg.spots):
+        if sc.target is None:
+            raise ConfigError(SOURCE, f"spots[{i}]", "the panel holds spots by target point; "
+                                                     "this one gives only a direction")
     s = scene.platolidar
     for name in _DIRECT:
         setattr(s, name, getattr(cfg, name))
-    s.range_mode, s.bins = "BINS", cfg.bins
+    s.range_mode, s.bins, s.subpixel_grid = "BINS", cfg.bins, side
     s.camera = bpy.data.objects.get(cfg.camera) if cfg.camera else None
     s.laser_mode = "OBJECT" if cfg.laser_object else "COLOCATED"
     s.laser_object = bpy.data.objects.get(cfg.laser_object) if cfg.laser_object else None
     s.spots.clear()
     s.spot_source = "LIST" if cfg.spots else "RANDOM"
     for i, sc in enumerate(cfg.spots):
-        if sc.target is None:
-            raise ConfigError(SOURCE, f"spots[{i}]", "the panel holds spots by target point; "
-                                                     "this one gives only a direction")
         sp = s.spots.add()
         sp.name, sp.enabled, sp.target = sc.name or f"Spot {i + 1:02d}", sc.enabled, sc.target
     s.active_spot_index = 0

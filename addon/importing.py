@@ -1,8 +1,10 @@
 """Bring reconstructions into the scene: meshes in place, error colours, visible-depth points.
 
-Meshes from torch_recon are written in Blender's Z-up world frame, so the built-in
-importers run with forward Y / up Z (no axis conversion) and objects keep identity
-transforms. Errors are ``ImportProblem`` with a message for the user.
+Frames on disk follow torch_recon/mesh_export.py: .ply holds Blender world (Z-up)
+coordinates, imported with forward Y / up Z (no conversion); .obj and .glb/.gltf are
+Y-up files, imported with the importers' own Y-up defaults, which restore the world
+frame. A ``<stem>.mesh.json`` sidecar, when present, says which frame a file uses and
+wins. Objects keep identity transforms. Errors are ``ImportProblem`` with a message.
 """
 
 from __future__ import annotations
@@ -39,19 +41,37 @@ def _move_to(obj, coll):
     coll.objects.link(obj)
 
 
+def file_is_z_up(path: str) -> bool:
+    """Is this mesh file in Blender's Z-up world (True) or a Y-up file (False)?"""
+    ext = os.path.splitext(path)[1].lower()
+    sidecar = os.path.join(os.path.dirname(path), os.path.splitext(os.path.basename(path))[0] + ".mesh.json")
+    try:
+        with open(sidecar) as f:
+            frame = json.load(f)["mesh"]["file_frames"][os.path.basename(path)]
+        return str(frame).startswith("blender_world_z_up")
+    except (OSError, ValueError, KeyError, TypeError):
+        return ext == ".ply"
+
+
 def import_mesh_file(path: str) -> list:
-    """Import a .ply/.obj in the world frame; returns the new objects (unlinked from other collections later)."""
+    """Import a .ply/.obj/.glb in place (world frame); returns the new objects."""
     if not os.path.isfile(path):
         raise ImportProblem(f"Mesh file '{path}' does not exist")
     ext = os.path.splitext(path)[1].lower()
+    axes = {"forward_axis": "Y", "up_axis": "Z"} if file_is_z_up(path) else \
+        {"forward_axis": "NEGATIVE_Z", "up_axis": "Y"}
     before = set(bpy.data.objects)
     try:
         if ext == ".ply":
-            bpy.ops.wm.ply_import(filepath=path, forward_axis="Y", up_axis="Z")
+            bpy.ops.wm.ply_import(filepath=path, **axes)
         elif ext == ".obj":
-            bpy.ops.wm.obj_import(filepath=path, forward_axis="Y", up_axis="Z")
+            bpy.ops.wm.obj_import(filepath=path, **axes)
+        elif ext in (".glb", ".gltf"):
+            if not hasattr(bpy.ops.import_scene, "gltf"):
+                raise ImportProblem("The glTF importer (io_scene_gltf2) is not enabled: enable it or use .ply")
+            bpy.ops.import_scene.gltf(filepath=path)  # glTF is Y-up by definition; the importer converts
         else:
-            raise ImportProblem(f"'{path}': expected a .ply or .obj mesh, got '{ext or 'no extension'}'")
+            raise ImportProblem(f"'{path}': expected a .ply, .obj or .glb mesh, got '{ext or 'no extension'}'")
     except RuntimeError as exc:
         raise ImportProblem(f"Blender could not import '{path}': {str(exc).strip()}") from None
     new = [o for o in bpy.data.objects if o not in before]

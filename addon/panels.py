@@ -133,7 +133,9 @@ class PLATOLIDAR_PT_simulate(_LidarPanel, bpy.types.Panel):
         layout.prop(s, "output_dir")
         col = layout.column(heading="Render", align=True)
         col.prop(s, "bounces")
-        col.prop(s, "subpixel_samples")
+        if s.bounces == 3 and hasattr(s, "third_bounce_vpls"):
+            col.prop(s, "third_bounce_vpls")
+        col.prop(s, "subpixel_grid")
         col.prop(s, "rgb")
         col = layout.column(heading="Ground Truth", align=True)
         col.prop(s, "train_depth")

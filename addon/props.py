@@ -77,7 +77,10 @@ class PLATOLIDAR_PG_settings(bpy.types.PropertyGroup):
     gate_window_bins: IntProperty(name="Gate Window (bins)", default=32, min=1, description="Bins kept by the gate")
     # -- what to render ---------------------------------------------------------------------
     bounces: IntProperty(name="Bounces", default=2, min=2, max=3, description="2, or 3 for third-order light")
-    subpixel_samples: IntProperty(name="Sub-pixel Samples", default=4, min=1, max=64)
+    third_bounce_vpls: IntProperty(name="Third-bounce Lights", default=16, min=1, soft_max=256,
+                                   description="With 3 bounces: virtual point lights (one render each) per spot")
+    subpixel_grid: IntProperty(name="Sub-pixel Grid", default=2, min=1, max=8,
+                               description="N: N x N sub-pixel samples per pixel, for depth edges spanning bins")
     rgb: BoolProperty(name="RGB Images", default=False, description="Also render RGB images (RGB-shadow baseline)")
     train_depth: BoolProperty(name="Train-view Depth", default=True, description="Ground-truth depth of the sensor")
     gt_mesh: BoolProperty(name="Ground-truth Mesh", default=True, description="Export the scene mesh (world frame)")

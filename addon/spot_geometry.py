@@ -95,43 +95,43 @@ def camera_ray_direction(cam, scene, u: float, v: float) -> Vector:
     return (cam.matrix_world.to_3x3() @ local).normalized()
 
 
-def random_candidates(scene, depsgraph, n: int, seed: int, max_tries_per_spot: int = 20) -> list:
-    """Up to n surface points the camera sees and the laser can reach, drawn uniformly in the image."""
+def random_candidates(scene, depsgraph, n: int, seed: int, max_tries_per_spot: int = 20):
+    """Up to n surface points the camera sees and the laser reaches, drawn uniformly in the image.
+
+    Returns (points, normals): lists of Vectors (world frame).
+    """
     cam = lidar_camera(scene)
     if cam is None:
         raise SpotError("No lidar camera: pick one in the Sensor panel or set the scene camera")
     rng = random.Random(seed)
     cam_origin = cam.matrix_world.translation.copy()
-    out = []
+    points, normals = [], []
     for _ in range(max(1, n) * max_tries_per_spot):
-        if len(out) >= n:
+        if len(points) >= n:
             break
         d = camera_ray_direction(cam, scene, rng.random(), rng.random())
         hit = cast(scene, depsgraph, cam_origin, d)
         if hit is None:
             continue
-        p = hit[0]
+        p, normal = hit[0], hit[1]
         q = aim_laser(scene, depsgraph, p)
         # the laser must land where the camera looks (not on an occluder in between)
         if q is not None and (q - p).length <= 1e-3 * (p - cam_origin).length + 1e-4:
-            out.append(q)
-    return out
+            points.append(q)
+            normals.append(normal)
+    return points, normals
 
 
-def select_diverse(points, k: int, seed: int) -> list[int]:
-    """Indices of k points by farthest-point selection (seeded start): spread-out spots."""
-    n = len(points)
-    if k >= n:
-        return list(range(n))
-    rng = random.Random(seed)
-    chosen = [rng.randrange(n)]
-    nearest = [(Vector(p) - Vector(points[chosen[0]])).length for p in points]
-    while len(chosen) < k:
-        i = max(range(n), key=lambda j: (nearest[j], -j))
-        chosen.append(i)
-        for j, p in enumerate(points):
-            nearest[j] = min(nearest[j], (Vector(p) - Vector(points[i])).length)
-    return chosen
+def select_diverse(points, normals, k: int, seed: int) -> list[int]:
+    """Indices of k spread-out spots: the simulator's own heuristic (pipeline.spot_selection)."""
+    import numpy as np
+    from pipeline.spot_selection import select_diverse_spots
+
+    idx = select_diverse_spots(np.array([tuple(p) for p in points], np.float64).reshape(-1, 3),
+                               None if normals is None else
+                               np.array([tuple(v) for v in normals], np.float64).reshape(-1, 3),
+                               int(k), np.random.default_rng(seed))
+    return [int(i) for i in idx]
 
 
 def evaluated_depsgraph(context=None):

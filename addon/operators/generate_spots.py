@@ -27,14 +27,15 @@ class PLATOLIDAR_OT_generate_spots(bpy.types.Operator):
             self.report({"ERROR"}, f"Cannot keep {s.random_keep} of {s.random_candidates} candidates")
             return {"CANCELLED"}
         try:
-            cands = random_candidates(scene, context.evaluated_depsgraph_get(), s.random_candidates, s.seed)
+            cands, normals = random_candidates(scene, context.evaluated_depsgraph_get(), s.random_candidates,
+                                               s.seed)
         except SpotError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         if not cands:
             self.report({"ERROR"}, "No surface in the camera's view that the laser can reach")
             return {"CANCELLED"}
-        keep = select_diverse(cands, s.random_keep, s.seed)
+        keep = select_diverse(cands, normals, s.random_keep, s.seed)
         if self.replace:
             s.spots.clear()
         for i in keep:

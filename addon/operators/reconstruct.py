@@ -9,19 +9,19 @@ from ..preferences import get_preferences
 from ._common import UserError, has_settings, resolve_path
 from ._job_base import JobOperatorMixin
 
-MESH_EXTENSIONS = (".ply", ".obj")
+MESH_EXTENSIONS = (".ply", ".obj", ".glb")  # preference order when written together
 
 
 def newest_mesh(folder: str) -> str | None:
-    """The most recently written mesh under `folder` (the reconstructor's output)."""
-    best = None
+    """The most recently written mesh under `folder` (the reconstructor's output); .ply first on ties."""
+    found = []
     for root, _dirs, files in os.walk(folder):
         for name in files:
-            if name.lower().endswith(MESH_EXTENSIONS):
+            ext = os.path.splitext(name)[1].lower()
+            if ext in MESH_EXTENSIONS and not name.startswith("."):  # dot-files: partial writes
                 p = os.path.join(root, name)
-                if best is None or os.path.getmtime(p) > os.path.getmtime(best):
-                    best = p
-    return best
+                found.append((round(os.path.getmtime(p), 1), -MESH_EXTENSIONS.index(ext), p))
+    return max(found)[2] if found else None
 
 
 class PLATOLIDAR_OT_reconstruct(JobOperatorMixin, bpy.types.Operator):
