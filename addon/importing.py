@@ -176,7 +176,8 @@ def colour_by_error(obj, bvh: BVHTree, scale_m: float | None = None) -> dict:
 
 def _attach_colour_material(obj):
     mat = bpy.data.materials.get("Reconstruction Error") or bpy.data.materials.new("Reconstruction Error")
-    mat.use_nodes = True
+    if mat.node_tree is None:  # Blender < 5.0 creates materials without nodes
+        mat.use_nodes = True
     nt = mat.node_tree
     bsdf = next((n for n in nt.nodes if n.type == "BSDF_PRINCIPLED"), None)
     attr = next((n for n in nt.nodes if n.type == "VERTEX_COLOR"), None) or nt.nodes.new("ShaderNodeVertexColor")

@@ -12,6 +12,10 @@ from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProp
                        IntProperty, PointerProperty, StringProperty)
 
 
+# paths may start with '//' (relative to the .blend)
+_BLEND_RELATIVE = {"PATH_SUPPORTS_BLEND_RELATIVE"}
+
+
 def _redraw_views(self, context):
     """Laser rays are drawn from these settings: redraw 3D views when they change."""
     wm = getattr(context, "window_manager", None)
@@ -98,19 +102,19 @@ class PLATOLIDAR_PG_settings(bpy.types.PropertyGroup):
     seed: IntProperty(name="Seed", default=0, min=0, description="Seed of every random choice")
     show_rays: BoolProperty(name="Show Laser Rays", default=True, update=_redraw_views)
     # -- jobs -------------------------------------------------------------------------------
-    output_dir: StringProperty(name="Dataset Folder", default="//lidar_dataset", subtype="DIR_PATH",
+    output_dir: StringProperty(name="Dataset Folder", default="//lidar_dataset", subtype="DIR_PATH", options=_BLEND_RELATIVE,
                                description="Where the simulation writes the dataset")
-    recon_dataset_dir: StringProperty(name="Dataset", default="", subtype="DIR_PATH",
+    recon_dataset_dir: StringProperty(name="Dataset", default="", subtype="DIR_PATH", options=_BLEND_RELATIVE,
                                       description="Dataset to reconstruct (empty: the simulation's folder)")
-    recon_out_dir: StringProperty(name="Output Folder", default="//lidar_recon", subtype="DIR_PATH")
+    recon_out_dir: StringProperty(name="Output Folder", default="//lidar_recon", subtype="DIR_PATH", options=_BLEND_RELATIVE)
     recon_mode: EnumProperty(name="Mode", default="fast",
                              items=(("fast", "Fast", "Grid field fit (default, CPU friendly)"),
                                     ("platonerf", "PlatoNeRF", "The published NeRF method (slow reference)")))
-    import_path: StringProperty(name="Mesh", default="", subtype="FILE_PATH",
+    import_path: StringProperty(name="Mesh", default="", subtype="FILE_PATH", options=_BLEND_RELATIVE,
                                 description="Reconstructed mesh (.ply or .obj, Blender world frame)")
     import_color_error: BoolProperty(name="Colour by Error", default=False,
                                      description="Colour vertices by distance to the dataset's ground-truth mesh")
-    measurements_path: StringProperty(name="Measurements", default="", subtype="FILE_PATH",
+    measurements_path: StringProperty(name="Measurements", default="", subtype="FILE_PATH", options=_BLEND_RELATIVE,
                                       description="Measurements .npz (torch_recon) with the visible depth")
 
 

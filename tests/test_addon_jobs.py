@@ -1,0 +1,184 @@
+"""Background jobs: command lines, progress parsing, cancel; simulate / reconstruct operators driven
+through their blocking execute path with fake Blender and Python executables (no real Blender
+binary exists here, and background mode has no window for the modal timer path)."""
+
+import json
+import sys
+import time
+
+import bpy
+import pytest
+
+from addon_fixtures import (REPO, blank, call, env_without_torch_python, expect_error, fake_executable,  # noqa: F401
+                            room, set_prefs)
+
+from addon import jobs
+
+FAKE_BLENDER = r'''
+import json, os, sys, time
+argv = sys.argv[1:]
+assert argv[0] == "-b", argv
+blend = argv[1]
+assert argv[argv.index("--python-exit-code") + 1] == "1" and argv.index("--python-exit-code") < argv.index("-P")
+script = argv[argv.index("-P") + 1]
+out = argv[argv.index("--out") + 1]
+assert os.path.isfile(blend) and script.endswith("simulate.py") and os.path.isfile(script)
+import bpy  # read the saved copy like simulate.py would
+bpy.ops.wm.open_mainfile(filepath=blend)
+cfg = json.loads(bpy.data.texts["platolidar_config.json"].as_string())
+for k in range(2):
+    print(f"spot {k + 1}/2", end="\r", flush=True)
+    time.sleep(0.05)
+if os.environ.get("FAKE_FAIL"):
+    print("simulate: error: setting 'bins': exceeds the scene", flush=True)
+    sys.exit(2)
+os.makedirs(out, exist_ok=True)
+json.dump({"seen_config": cfg, "blend": blend}, open(os.path.join(out, "dataset.json"), "w"))
+print("done", flush=True)
+'''
+
+FAKE_PYTHON = r'''
+import os, sys
+if sys.argv[1] == "-c":
+    print("OK torch 2.13.0 cpu"); sys.exit(0)
+assert sys.argv[1:4] == ["-m", "torch_recon", "fit"], sys.argv
+dataset, mode, out = sys.argv[4], sys.argv[sys.argv.index("--mode") + 1], sys.argv[sys.argv.index("--out") + 1]
+assert os.path.isfile(os.path.join(dataset, "dataset.json"))
+for i in range(0, 101, 25):
+    print(f"fit {mode}: {i}%|####| loss=0.1", end="\r", flush=True)
+os.makedirs(out, exist_ok=True)
+open(os.path.join(out, "mesh.ply"), "w").write("ply\n")
+'''
+
+
+def test_command_lines():
+    cmd = jobs.simulate_command("/opt/blender", "/tmp/a b.blend", "/x/pipeline/simulate.py", "/o")
+    assert cmd == ["/opt/blender", "-b", "/tmp/a b.blend", "--python-exit-code", "1", "-P",
+                   "/x/pipeline/simulate.py", "--", "--out", "/o"]
+    assert jobs.reconstruct_command("py", "/d", "/o", "fast") == ["py", "-m", "torch_recon", "fit", "/d",
+                                                                  "--mode", "fast", "--out", "/o"]
+
+
+@pytest.mark.parametrize("line,expected", [("spot 3/16 rendered", 3 / 16), (" 42%|####  | 84/200", 0.42),
+                                           ("fit: 100.0%", 1.0), ("version 5.0.1", None), ("17/0", None),
+                                           ("no numbers", None), ("20/10", None)])
+def test_parse_progress(line, expected):
+    got = jobs.parse_progress(line)
+    assert got == (None if expected is None else pytest.approx(expected))
+
+
+def test_job_progress_and_exit(tmp_path):
+    code = "import sys,time\nfor i in range(1,5):\n print(f'step {i}/4', end='\\r', flush=True); time.sleep(0.02)\n" \
+           "print('\\nError: last words', flush=True); sys.exit(3)"
+    job = jobs.Job("t", [sys.executable, "-c", code]).start()
+    assert job.wait(timeout=30) == 3
+    assert job.progress == 1.0 and "step 4/4" in job.lines
+    assert "last words" in job.failure_summary() and not job.ok
+
+
+def test_job_cancel_stops_quickly():
+    job = jobs.Job("t", [sys.executable, "-c", "import time; print('started', flush=True); time.sleep(60)"]).start()
+    time.sleep(0.3)
+    t = time.monotonic()
+    job.cancel(grace=2.0)
+    assert time.monotonic() - t < 3.0
+    assert job.poll() and job.cancelled and job.returncode != 0
+
+
+def test_simulate_with_fake_blender(room, tmp_path):
+    blender = fake_executable(tmp_path / "blender", FAKE_BLENDER)
+    set_prefs(blender_path=str(blender))
+    room.cursor.location = (0.0, 0.5, 0.5)
+    call(bpy.ops.platolidar.add_spot_cursor)
+    room.platolidar.output_dir = str(tmp_path / "dataset")
+    res, err = call(bpy.ops.platolidar.simulate)
+    assert err is None and res == {"FINISHED"}
+    d = json.loads((tmp_path / "dataset" / "dataset.json").read_text())
+    # the background Blender read exactly the panel's settings from the saved copy
+    assert d["seen_config"]["width"] == 16 and d["seen_config"]["camera"] == "LidarCam"
+    assert d["seen_config"]["spots"][0]["target"] == pytest.approx([0.0, 0.5, 0.5], abs=1e-4)
+    assert not __import__("os").path.exists(d["blend"])  # the temporary copy is gone
+    assert room.platolidar.recon_dataset_dir == str(tmp_path / "dataset")
+    assert bpy.data.filepath == ""  # the open file was not re-pathed by saving the copy
+
+
+def test_simulate_failure_is_reported(room, tmp_path, monkeypatch):
+    set_prefs(blender_path=str(fake_executable(tmp_path / "blender", FAKE_BLENDER)))
+    room.cursor.location = (0.0, 0.5, 0.5)
+    call(bpy.ops.platolidar.add_spot_cursor)
+    room.platolidar.output_dir = str(tmp_path / "dataset")
+    monkeypatch.setenv("FAKE_FAIL", "1")
+    err = expect_error(bpy.ops.platolidar.simulate, "exit code 2")
+    assert "exceeds the scene" in err
+    assert not (tmp_path / "dataset").exists()
+
+
+def test_simulate_bad_states(room, tmp_path):
+    s = room.platolidar
+    s.output_dir = str(tmp_path / "ds")
+    expect_error(bpy.ops.platolidar.simulate, "no enabled spot")
+    room.cursor.location = (0.0, 0.5, 0.5)
+    call(bpy.ops.platolidar.add_spot_cursor)
+    # bpy module: no Blender executable, none in the preferences
+    expect_error(bpy.ops.platolidar.simulate, "blender binary")
+    set_prefs(blender_path=str(tmp_path / "missing-blender"))
+    expect_error(bpy.ops.platolidar.simulate, "does not exist")
+    set_prefs(blender_path=str(tmp_path))
+    expect_error(bpy.ops.platolidar.simulate, "not an executable")
+    set_prefs(blender_path=str(fake_executable(tmp_path / "blender", FAKE_BLENDER)))
+    s.spots[0].target = (0.0, -20.0, 8.0)
+    expect_error(bpy.ops.platolidar.simulate, "aimed at nothing")
+    s.spots[0].target = (0.0, 0.5, 0.5)
+    s.output_dir = "//relative_dataset"  # the .blend is not saved
+    expect_error(bpy.ops.platolidar.simulate, "not saved")
+    s.camera = None
+    room.camera = None
+    expect_error(bpy.ops.platolidar.simulate, "no lidar camera")
+    assert not bpy.ops.platolidar.cancel_job.poll()
+
+
+def _fake_dataset(tmp_path):
+    ds = tmp_path / "ds"
+    ds.mkdir()
+    (ds / "dataset.json").write_text("{}")
+    return ds
+
+
+def test_reconstruct_with_fake_python(room, tmp_path):
+    py = fake_executable(tmp_path / "python", FAKE_PYTHON)
+    set_prefs(python_path=str(py))
+    s = room.platolidar
+    s.recon_dataset_dir = str(_fake_dataset(tmp_path))
+    s.recon_out_dir = str(tmp_path / "recon")
+    res, err = call(bpy.ops.platolidar.reconstruct)
+    assert err is None and res == {"FINISHED"}
+    assert s.import_path == str(tmp_path / "recon" / "mesh.ply")
+
+
+def test_reconstruct_bad_environments(room, tmp_path):
+    s = room.platolidar
+    s.recon_dataset_dir = str(_fake_dataset(tmp_path))
+    s.recon_out_dir = str(tmp_path / "recon")
+    expect_error(bpy.ops.platolidar.reconstruct, "no reconstruction python")
+    set_prefs(python_path=str(tmp_path / "nowhere" / "python"))
+    expect_error(bpy.ops.platolidar.reconstruct, "does not exist")
+    expect_error(bpy.ops.platolidar.check_environment, "does not exist")
+    no_torch = env_without_torch_python()
+    if no_torch is not None:
+        set_prefs(python_path=no_torch)
+        expect_error(bpy.ops.platolidar.reconstruct, "cannot import torch")
+        expect_error(bpy.ops.platolidar.check_environment, "cannot import torch")
+    # an interpreter that dies on start
+    set_prefs(python_path=str(fake_executable(tmp_path / "broken", "import sys; sys.exit(1)")))
+    expect_error(bpy.ops.platolidar.reconstruct, "failed to start")
+    # a working interpreter (the fake) but no dataset there
+    set_prefs(python_path=str(fake_executable(tmp_path / "python", FAKE_PYTHON)))
+    s.recon_dataset_dir = str(tmp_path / "empty")
+    expect_error(bpy.ops.platolidar.reconstruct, "not a dataset")
+
+
+def test_real_python_environment_check(room):
+    """This venv's Python has torch, and torch_recon from the checkout: the check passes."""
+    set_prefs(python_path=sys.executable)
+    res, err = call(bpy.ops.platolidar.check_environment)
+    assert err is None and res == {"FINISHED"}
