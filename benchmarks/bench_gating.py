@@ -58,6 +58,15 @@ def sbr_measures(tr, lit, path_bin):
     return float(intensity), eq5
 
 
+def _rel_sigma(signal, background, lit) -> float:
+    """1-sigma relative error of the measured intensity SBR (Poisson counts, lit / shadow means)."""
+    n_lit, n_sh = int(lit.sum()), int((~lit).sum())
+    var_l = (signal + background) / n_lit
+    var_b = background / n_sh
+    sbr = signal / background
+    return float(np.sqrt(var_l + var_b * (1 + sbr) ** 2) / background / sbr)
+
+
 def sbr_curve(n_side: int, seed: int = 0) -> list[dict]:
     t = 391
     base = dict(width=n_side, height=n_side, bins=t)
@@ -80,8 +89,14 @@ def sbr_curve(n_side: int, seed: int = 0) -> list[dict]:
         g_int, g_eq5 = sbr_measures(tr, lit, path_bin)
         # fraction of the pulse inside each lit pixel's gate (signal the gate cuts away)
         idx = tr.start_bin[lit][:, None] + np.arange(w)
-        kept = float(np.take_along_axis(wts[lit.ravel()], idx, axis=1).sum(axis=1).mean())
+        inside = np.take_along_axis(wts[lit.ravel()], idx, axis=1)
+        kept = float(inside.sum(axis=1).mean())
+        kept_sq = float((np.sum(inside ** 2, axis=1) / np.sum(wts[lit.ravel()] ** 2, axis=1)).mean())
+        b_w = noise.ambient_per_bin * noise.wavelength_filter_factor * w
         rows.append({"window_bins": w, "predicted_gain": t / w, "predicted_gain_pulse_cut": t / w * kept,
+                     "predicted_gain_eq5_pulse_cut": t / w * kept_sq,
+                     "intensity_gain_rel_sigma": float(np.hypot(_rel_sigma(20.0 * kept, b_w, lit),
+                                                                _rel_sigma(20.0, b_w * t / w, lit))),
                      "pulse_fraction_in_window": kept, "measured_gain_intensity": g_int / ref_int,
                      "measured_gain_eq5": g_eq5 / ref_eq5, "sbr_intensity": g_int, "sbr_eq5": g_eq5})
     return rows, {"ungated_sbr_intensity": ref_int, "ungated_sbr_eq5": ref_eq5, "pixels": int(lit.size),
@@ -128,7 +143,8 @@ def speed(res: int, repeats: int = 3) -> dict:
     path = expected_return_path(x, valid, l, o, o)
     out = {"resolution": res, "subsamples": int(x.shape[0]), "bins": sensor.bins,
            "bin_first_call_s": t_first.seconds, "bin_reused_buffer_s_median": statistics.median(reuse),
-           "bin_reused_buffer_s_all": reuse}
+           "bin_reused_buffer_s_all": reuse, "cube_mb": cube.nbytes / 2 ** 20,
+           "lit_fraction": float(np.mean(rad > 0))}
     settings = {
         "expected_values": (NoiseSpec(), TimeGate()),
         "poisson_gate32": (NoiseSpec(photon_counts=True, photons_per_pixel=1000.0, ambient_per_bin=0.05),
@@ -156,6 +172,8 @@ def plot(rows, path):
     fig, ax = plt.subplots(figsize=(5.5, 4))
     ax.loglog(w, [r["predicted_gain"] for r in rows], "k--", label="predicted T/W")
     ax.loglog(w, [r["predicted_gain_pulse_cut"] for r in rows], "k:", label="T/W x pulse fraction in window")
+    ax.loglog(w, [r["predicted_gain_eq5_pulse_cut"] for r in rows], ":", color="grey",
+              label="T/W x squared-pulse fraction (Eq. 5)")
     ax.loglog(w, [r["measured_gain_intensity"] for r in rows], "o-", label="measured (intensity SBR)")
     ax.loglog(w, [r["measured_gain_eq5"] for r in rows], "s-", mfc="none", label="measured (supplement Eq. 5)")
     ax.set_xlabel("gate window W (bins of 128 ps)")
@@ -179,14 +197,19 @@ def main(argv=None):
     print(f"\nSBR gain of the time gate ({ref['pixels']} pixels, {ref['photons_per_pixel']:g} signal photons per lit "
           f"pixel, {ref['background_per_bin']:g} background photons per bin, Poisson)")
     print(f"ungated SBR: intensity {ref['ungated_sbr_intensity']:.4f}, Eq.5 {ref['ungated_sbr_eq5']:.5f}")
-    print(f"{'W':>4} {'T/W':>8} {'T/W*cut':>8} {'meas(int)':>10} {'meas(eq5)':>10} {'int/pred':>9}")
+    print("predicted: T/W; 'cut' columns also count the pulse energy (intensity) or squared energy (Eq. 5)\n"
+          "that a narrow gate cuts away; ratio = measured / predicted-with-cut (intensity), sigma its 1-sigma")
+    print(f"{'W':>4} {'T/W':>8} {'pred.cut':>8} {'meas.int':>9} {'ratio':>6} {'sigma':>6} "
+          f"{'pred.eq5':>9} {'meas.eq5':>9}")
     for r in rows:
         print(f"{r['window_bins']:>4} {r['predicted_gain']:>8.2f} {r['predicted_gain_pulse_cut']:>8.2f} "
-              f"{r['measured_gain_intensity']:>10.2f} {r['measured_gain_eq5']:>10.2f} "
-              f"{r['measured_gain_intensity'] / r['predicted_gain_pulse_cut']:>9.3f}")
+              f"{r['measured_gain_intensity']:>9.2f} "
+              f"{r['measured_gain_intensity'] / r['predicted_gain_pulse_cut']:>6.3f} "
+              f"{r['intensity_gain_rel_sigma']:>6.3f} {r['predicted_gain_eq5_pulse_cut']:>9.2f} "
+              f"{r['measured_gain_eq5']:>9.2f}")
     sp = speed(args.resolution)
     print(f"\nbinning {sp['resolution']}x{sp['resolution']}x{sp['bins']}, S={sp['subsamples']}: first call "
-          f"{sp['bin_first_call_s']:.3f} s (fresh 400 MB cube), reused buffer {sp['bin_reused_buffer_s_median']:.3f} s")
+          f"{sp['bin_first_call_s']:.3f} s (fresh {sp['cube_mb']:.0f} MB cube), reused buffer {sp['bin_reused_buffer_s_median']:.3f} s")
     for name in ("expected_values", "poisson_gate32", "poisson_ambient_dense"):
         print(f"apply_sensor {name:<22} {sp[f'sensor_{name}_s']:.3f} s  (window {sp[f'sensor_{name}_window_bins']} bins)")
     print(f"peak RSS {sp['peak_rss_mb']:.0f} MiB")

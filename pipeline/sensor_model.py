@@ -92,19 +92,20 @@ def _nonzero_extent(flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return first, last
 
 
-def _poisson_counts(signal: np.ndarray, background: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Counts (n, g) float32 ~ Poisson(signal + background) per bin, independent bins.
+def _poisson_counts(expected: np.ndarray, scale: float, background: np.ndarray, rng: np.random.Generator,
+                    out: np.ndarray) -> np.ndarray:
+    """Counts (n, g) float32 ~ Poisson(expected * scale + background) per bin, independent bins.
 
     Drawn as the sum of two independent Poisson parts (same distribution, much faster): the
     signal only where its rate is non-zero, and the flat background of each pixel as a Poisson
     total Poisson(b * g) spread uniformly over its g bins (splitting a Poisson process).
     """
-    n, g = signal.shape
-    out = np.zeros((n, g), np.float32)
-    nz = signal > 0
+    n, g = expected.shape
+    out.fill(0.0)
+    nz = expected > 0
     if nz.any():
         try:
-            out[nz] = rng.poisson(signal[nz])
+            out[nz] = rng.poisson(expected[nz].astype(np.float64) * scale)
         except ValueError as exc:
             raise ValueError(f"photons_per_pixel: Poisson sampling failed ({exc}); lower photons_per_pixel"
                              ) from None
@@ -112,11 +113,12 @@ def _poisson_counts(signal: np.ndarray, background: np.ndarray, rng: np.random.G
         totals = rng.poisson(background * g)
         pixel = np.repeat(np.arange(n), totals)
         where = pixel * g + rng.integers(0, g, pixel.size)
-        out += np.bincount(where, minlength=n * g).reshape(n, g).astype(np.float32)
+        np.add.at(out.reshape(-1), where, np.float32(1.0))
     return out
 
 
-def _check_expected(expected: np.ndarray, sensor: SensorSpec) -> None:
+def _check_expected(expected: np.ndarray, sensor: SensorSpec) -> float:
+    """Shape, finiteness, sign; returns the largest value."""
     if expected.ndim != 3 or expected.shape != (sensor.height, sensor.width, sensor.bins):
         raise ValueError(f"expected transient: expected shape (H, W, T) = "
                          f"{(sensor.height, sensor.width, sensor.bins)} from the sensor, got {expected.shape}")
@@ -126,6 +128,8 @@ def _check_expected(expected: np.ndarray, sensor: SensorSpec) -> None:
             raise ValueError("expected transient: contains NaN or inf")
         if lo < 0:
             raise ValueError(f"expected transient: negative expected value {lo}")
+        return hi
+    return 0.0
 
 
 def apply_sensor(expected, sensor: SensorSpec, noise: NoiseSpec, rng: np.random.Generator, expected_path=None, *,
@@ -140,7 +144,7 @@ def apply_sensor(expected, sensor: SensorSpec, noise: NoiseSpec, rng: np.random.
     a count above 65504 raises. Output is float32, finite and >= 0 for any valid input.
     """
     expected = np.asarray(expected)
-    _check_expected(expected, sensor)
+    peak = _check_expected(expected, sensor)
     if sample_type not in ("float32", "float16"):
         raise ValueError(f"sample_type: expected 'float32' or 'float16', got {sample_type!r}")
     h, w, t = expected.shape
@@ -173,6 +177,9 @@ def apply_sensor(expected, sensor: SensorSpec, noise: NoiseSpec, rng: np.random.
         g = max(int((last - first).max()) + 1, 1) if flat.size else 1
         start = np.clip(first, 0, t - g)
 
+    if not peak * scale + float(bg_flat.max(initial=0.0)) <= np.finfo(np.float32).max:
+        raise ValueError("photons_per_pixel: the scaled transient overflows float32 (is the first-bounce pixel "
+                         "far brighter than the budgeted two-bounce pixel?); lower photons_per_pixel")
     window = np.empty((h * w, g), np.float32)
     offsets = np.arange(g)
     for a in range(0, h * w, CHUNK_PIXELS):
@@ -182,18 +189,12 @@ def apply_sensor(expected, sensor: SensorSpec, noise: NoiseSpec, rng: np.random.
         need = st < 0
         if need.any():                       # gate without a known path: strongest window
             st[need] = _strongest_starts(block[need], g)
-        if g == t:
-            vals = block.astype(np.float64)
-        else:
-            vals = np.take_along_axis(block, st[:, None] + offsets[None, :], axis=1).astype(np.float64)
-        signal = vals * scale
-        if not np.all(np.isfinite(signal)) or (signal.size and signal.max() > np.finfo(np.float32).max):
-            raise ValueError("photons_per_pixel: the scaled transient overflows (is the first-bounce pixel "
-                             "far brighter than the budgeted two-bounce pixel?); lower photons_per_pixel")
+        vals = block if g == t else np.take_along_axis(block, st[:, None] + offsets[None, :], axis=1)
         if noise.photon_counts:
-            window[a:b] = _poisson_counts(signal, bg_flat[a:b], rng)
+            _poisson_counts(vals, scale, bg_flat[a:b], rng, out=window[a:b])
         else:
-            window[a:b] = signal + bg_flat[a:b, None]
+            np.multiply(vals, scale, out=window[a:b], casting="unsafe")
+            window[a:b] += bg_flat[a:b, None]
     if sample_type == "float16":
         peak = float(window.max()) if window.size else 0.0
         if peak > FLOAT16_MAX:
