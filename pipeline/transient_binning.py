@@ -146,7 +146,7 @@ def _deposit_samples(flat: np.ndarray, samples: list, kernel: PulseKernel):
     p, t = flat.shape
     k_sup = kernel.support_bins
     width = k_sup + FAST_SPREAD_BINS
-    big = np.iinfo(np.int64).max
+    big = np.iinfo(np.int64).max // 4          # sentinel; hi - lo cannot overflow
     lo = np.full(p, big, np.int64)
     hi = np.full(p, -big, np.int64)
     pulses = []
