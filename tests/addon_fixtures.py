@@ -118,13 +118,21 @@ def fake_executable(path: Path, body: str) -> Path:
 # -- recording layout --------------------------------------------------------------------------
 
 
+def _operator_rna(idname):
+    """The operator's RNA type; bpy.ops makes a stub for any name, so ask for the registered type."""
+    mod, name = idname.split(".")
+    try:
+        return getattr(getattr(bpy.ops, mod), name).get_rna_type()
+    except KeyError:
+        raise AssertionError(f"no operator {idname}") from None
+
+
 class _OpProps:
     """What layout.operator() returns: setting a property checks that the operator has it."""
 
     def __init__(self, idname, log):
         self._idname, self._log = idname, log
-        mod, name = idname.split(".")
-        self._props = set(getattr(getattr(bpy.ops, mod), name).get_rna_type().properties.keys())
+        self._props = set(_operator_rna(idname).properties.keys())
 
     def __setattr__(self, key, value):
         if key.startswith("_"):
@@ -157,10 +165,7 @@ class RecordingLayout:
         self.log.append(("prop", data.bl_rna.identifier, prop))
 
     def operator(self, idname, **kw):
-        mod, name = idname.split(".")
-        assert hasattr(getattr(bpy.ops, mod), name), f"no operator {idname}"
-        # an id that resolves only to a stub would raise here
-        getattr(getattr(bpy.ops, mod), name).get_rna_type()
+        _operator_rna(idname)
         self.log.append(("operator", idname))
         return _OpProps(idname, self.log)
 

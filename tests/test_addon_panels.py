@@ -1,0 +1,95 @@
+"""Every panel's draw() against a recording UILayout that checks each drawn property and operator."""
+
+from types import SimpleNamespace
+
+import bpy
+import pytest
+
+from addon_fixtures import ADDON, RecordingLayout, blank, call, draw_panel, room  # noqa: F401 (fixtures)
+
+from addon import jobs, panels, preferences
+
+PANELS = [c for c in panels.classes if issubclass(c, bpy.types.Panel)]
+
+
+def _props(log):
+    return {entry[2] for entry in log if entry[0] == "prop"}
+
+
+def _ops(log):
+    return {entry[1] for entry in log if entry[0] == "operator"}
+
+
+@pytest.mark.parametrize("panel", PANELS, ids=lambda c: c.__name__)
+def test_panels_draw_on_an_empty_scene(blank, panel):
+    assert panel.poll(bpy.context)
+    log = draw_panel(panel)
+    assert log, "nothing drawn"
+
+
+def test_panels_draw_in_every_branch(room):
+    s = room.platolidar
+    room.cursor.location = (0.0, 0.5, 0.5)
+    call(bpy.ops.platolidar.add_spot_cursor)
+    seen_props, seen_ops = set(), set()
+    for range_mode, laser_mode, bounces, gate in (("BINS", "COLOCATED", 2, False), ("RANGE", "OBJECT", 3, True)):
+        s.range_mode, s.laser_mode, s.bounces, s.time_gate = range_mode, laser_mode, bounces, gate
+        for panel in PANELS:
+            log = draw_panel(panel)
+            seen_props |= _props(log)
+            seen_ops |= _ops(log)
+    # every setting and every operator of the add-on is reachable from the sidebar
+    settings = {p for p in s.bl_rna.properties.keys() if p not in ("rna_type", "name", "spots",
+                                                                   "active_spot_index")}
+    assert settings - seen_props == set()
+    # (Cancel appears only while a job runs: test_running_job_shows_progress_and_cancel)
+    assert {c.bl_idname for c in __import__("addon").operators.classes} - seen_ops == {"platolidar.cancel_job"}
+    assert "target" in seen_props  # the active spot's target is editable
+
+
+def test_spots_list_rows(room):
+    room.cursor.location = (0.0, 0.5, 0.5)
+    call(bpy.ops.platolidar.add_spot_cursor)
+    s = room.platolidar
+    layout = RecordingLayout()
+    panels.PLATOLIDAR_UL_spots.draw_item(None, bpy.context, layout, s, s.spots[0], 0, s, "active_spot_index", 0)
+    assert ("prop", "PLATOLIDAR_PG_spot", "enabled") in layout.log
+    assert any(e[0] == "label" and "0.50" in e[1] for e in layout.log)
+
+
+def test_running_job_shows_progress_and_cancel(blank):
+    job = jobs.Job("simulation", ["true"])
+    job.progress, job.last_line = 0.25, "spot 4/16"
+    jobs.set_active(job, "simulation")
+    try:
+        log = draw_panel(panels.PLATOLIDAR_PT_simulate)
+    finally:
+        jobs.set_active(None, "simulation")
+    assert ("progress", 0.25, "25%  spot 4/16") in log
+    assert ("op_prop", "platolidar.cancel_job", "kind") in log
+    assert "platolidar.simulate" not in _ops(log)
+
+
+def test_preferences_draw(blank):
+    prefs = bpy.context.preferences.addons[ADDON].preferences
+    layout = RecordingLayout()
+    proxy = SimpleNamespace(layout=layout, bl_rna=prefs.bl_rna)
+    preferences.PLATOLIDAR_AP_preferences.draw(proxy, bpy.context)
+    assert _props(layout.log) == {"python_path", "blender_path", "project_dir", "output_dir"}
+
+
+def test_the_stub_catches_typos(blank):
+    s = bpy.context.scene.platolidar
+
+    def bad_prop(self, context):
+        self.layout.prop(s, "bin_width_ps")  # not a property
+
+    def bad_operator(self, context):
+        self.layout.operator("platolidar.simulat")
+
+    def bad_operator_prop(self, context):
+        self.layout.operator("platolidar.cancel_job").knd = "simulation"
+
+    for draw in (bad_prop, bad_operator, bad_operator_prop):
+        with pytest.raises(AssertionError):
+            draw(SimpleNamespace(layout=RecordingLayout()), bpy.context)
