@@ -185,6 +185,12 @@ def test_out_buffer_is_reused_and_cleared():
     got = bin_two_bounce(pos, rad, valid, L_AXIS, O, O, s, out=buf)
     assert got is buf
     np.testing.assert_array_equal(got, ref)
+    # accumulate: a second light source adds into the same cube
+    ref2 = bin_two_bounce(pos, rad, valid, (0.2, 0.1, 0.3), O, O, s)
+    bin_two_bounce(pos, rad, valid, (0.2, 0.1, 0.3), O, O, s, out=buf, accumulate=True)
+    np.testing.assert_allclose(buf, ref + ref2, rtol=1e-6, atol=1e-9)
+    with pytest.raises(ValueError, match="accumulate"):
+        bin_two_bounce(pos, rad, valid, L_AXIS, O, O, s, accumulate=True)
 
 
 def test_expected_return_path_is_mean_of_valid_samples():
