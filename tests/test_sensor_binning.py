@@ -202,3 +202,12 @@ def test_expected_return_path_is_mean_of_valid_samples():
     assert p.shape == (1, 2) and p.dtype == np.float32
     np.testing.assert_allclose(p, [[4.0, 4.0]], atol=1e-6)
     assert np.isnan(expected_return_path(pos, valid & False, L_AXIS, O, O)).all()
+
+
+def test_threads_give_identical_bytes():
+    s = make_sensor(w=256, h=130, bins=300)                    # enough pixels for two thread blocks
+    pos, rad, valid = random_scene(s, 2, np.random.default_rng(4))
+    one = bin_two_bounce(pos, rad, valid, L_AXIS, O, O, s, threads=1)
+    two = bin_two_bounce(pos, rad, valid, L_AXIS, O, O, s, threads=2)
+    three = bin_two_bounce(pos, rad, valid, L_AXIS, O, O, s, threads=3)
+    assert one.any() and one.tobytes() == two.tobytes() == three.tobytes()
