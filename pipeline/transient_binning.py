@@ -111,8 +111,9 @@ def expected_return_path(sub_positions, sub_valid, first_bounce, laser_origin, s
     total = np.zeros(pos.shape[1:3])
     count = np.zeros(pos.shape[1:3])
     for s in range(pos.shape[0]):
-        v = valid[s] & np.all(np.isfinite(pos[s]), axis=-1)
-        p = optical_path(np.where(v[..., None], pos[s], 0.0), first_bounce, laser_origin, sensor_centre)
+        with np.errstate(invalid="ignore", over="ignore"):
+            p = optical_path(pos[s], first_bounce, laser_origin, sensor_centre)
+        v = valid[s] & np.isfinite(p)          # a non-finite position gives a non-finite path
         total += np.where(v, p, 0.0)
         count += v
     out = np.full(total.shape, np.nan, np.float32)

@@ -201,6 +201,8 @@ def test_expected_return_path_is_mean_of_valid_samples():
     p = expected_return_path(pos, valid, L_AXIS, O, O)
     assert p.shape == (1, 2) and p.dtype == np.float32
     np.testing.assert_allclose(p, [[4.0, 4.0]], atol=1e-6)
+    pos[1, 0, 1] = np.nan                                        # a non-finite position counts as invalid
+    np.testing.assert_allclose(expected_return_path(pos, valid | True, L_AXIS, O, O), [[4.0, 4.0]], atol=1e-6)
     assert np.isnan(expected_return_path(pos, valid & False, L_AXIS, O, O)).all()
 
 
