@@ -107,8 +107,12 @@ class Job:
     """A subprocess whose merged output is read on a thread; poll() from the UI, wait() in scripts."""
 
     def __init__(self, kind: str, cmd: list[str], cwd: str | None = None, env: dict | None = None,
-                 log_lines: int = 400):
+                 log_lines: int = 400, progress_lines: str | None = None):
+        """progress_lines: regex; only matching lines move the progress (e.g. the simulator's
+        'spot k/N', not Cycles' own 'Sample k/N')."""
         self.kind, self.cmd, self.cwd, self.env = kind, [str(c) for c in cmd], cwd, env
+        self.progress_re = re.compile(progress_lines) if progress_lines else None
+        self.progress_line = ""
         self.lines: collections.deque = collections.deque(maxlen=log_lines)
         self.progress: float | None = None
         self.last_line = ""
@@ -154,9 +158,10 @@ class Job:
         with self._lock:
             self.lines.append(line)
             self.last_line = line
-            frac = parse_progress(line)
-            if frac is not None:
-                self.progress = frac
+            if self.progress_re is None or self.progress_re.search(line):
+                frac = parse_progress(line)
+                if frac is not None:
+                    self.progress, self.progress_line = frac, line
 
     def poll(self) -> bool:
         """True once the process has exited and all its output has been read."""
@@ -212,7 +217,8 @@ class Job:
 
     def status_text(self) -> str:
         pct = f"{100.0 * self.progress:.0f}% " if self.progress is not None else ""
-        return f"{self.kind}: {pct}{self.last_line[:120]}  ({self.elapsed:.0f} s, Esc to cancel)"
+        return f"{self.kind}: {pct}{(self.progress_line or self.last_line)[:120]}  " \
+               f"({self.elapsed:.0f} s, Esc to cancel)"
 
     def failure_summary(self, n: int = 6) -> str:
         """The lines most likely to say why it failed: errors first, else the tail."""

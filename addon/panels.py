@@ -25,7 +25,7 @@ def _job_row(layout, kind: str) -> bool:
         return False
     row = layout.row(align=True)
     row.progress(factor=job.progress or 0.0, type="BAR",
-                 text=f"{100 * (job.progress or 0):.0f}%  {job.last_line[:40]}")
+                 text=f"{100 * (job.progress or 0):.0f}%  {(job.progress_line or job.last_line)[:40]}")
     op = row.operator("platolidar.cancel_job", text="", icon="CANCEL")
     op.kind = kind
     return True

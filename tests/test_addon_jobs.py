@@ -76,6 +76,14 @@ def test_job_progress_and_exit(tmp_path):
     assert "last words" in job.failure_summary() and not job.ok
 
 
+def test_job_progress_only_from_matching_lines():
+    code = "print('spot 1/4 rendered'); print('Sample 15/16'); print('Saved: a/b')"
+    job = jobs.Job("t", [sys.executable, "-c", code], progress_lines=r"^spot \d+/\d+").start()
+    assert job.wait(timeout=30) == 0 and job.ok
+    assert job.progress == 0.25 and job.progress_line == "spot 1/4 rendered" and job.last_line == "Saved: a/b"
+    assert "spot 1/4" in job.status_text()
+
+
 def test_job_cancel_stops_quickly():
     job = jobs.Job("t", [sys.executable, "-c", "import time; print('started', flush=True); time.sleep(60)"]).start()
     time.sleep(0.3)

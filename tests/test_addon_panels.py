@@ -59,7 +59,7 @@ def test_spots_list_rows(room):
 
 def test_running_job_shows_progress_and_cancel(blank):
     job = jobs.Job("simulation", ["true"])
-    job.progress, job.last_line = 0.25, "spot 4/16"
+    job.progress, job.progress_line, job.last_line = 0.25, "spot 4/16", "Saved: x.exr"
     jobs.set_active(job, "simulation")
     try:
         log = draw_panel(panels.PLATOLIDAR_PT_simulate)

@@ -56,7 +56,8 @@ class PLATOLIDAR_OT_simulate(JobOperatorMixin, bpy.types.Operator):
         except RuntimeError as exc:
             raise UserError(f"Could not save a copy of the scene to {blend}: {exc}") from None
         self._out_dir = out_dir
-        return jobs.Job("simulation", jobs.simulate_command(binary, blend, script, out_dir), cwd=self._tmp)
+        return jobs.Job("simulation", jobs.simulate_command(binary, blend, script, out_dir), cwd=self._tmp,
+                        progress_lines=r"^spot \d+/\d+")
 
     def cleanup(self, context, job):
         tmp = getattr(self, "_tmp", None)
