@@ -190,3 +190,86 @@ def test_real_python_environment_check(room):
     set_prefs(python_path=sys.executable)
     res, err = call(bpy.ops.platolidar.check_environment)
     assert err is None and res == {"FINISHED"}
+
+
+class _Recorder:
+    def __init__(self):
+        self.status, self.timers_removed = [], 0
+
+    def status_text_set(self, text):
+        self.status.append(text)
+
+    def event_timer_remove(self, timer):
+        self.timers_removed += 1
+
+
+def _modal_op(cmd, finish_result=frozenset({"FINISHED"})):
+    """The modal plumbing of the job operators, on a plain object (no window exists in background mode)."""
+    from addon.operators._job_base import JobOperatorMixin
+
+    class FakeJobOperator(JobOperatorMixin):
+        job_kind = "simulation"
+
+        def __init__(self):
+            self.reports, self.cleaned = [], 0
+
+        def report(self, kind, msg):
+            self.reports.append((next(iter(kind)), msg))
+
+        def build_job(self, context):
+            return jobs.Job("simulation", cmd, progress_lines=r"^spot")
+
+        def finish(self, context, job):
+            return set(finish_result)
+
+        def cleanup(self, context, job):
+            self.cleaned += 1
+
+    rec = _Recorder()
+    ctx = type("Ctx", (), {"workspace": rec, "window_manager": rec})()
+    op = FakeJobOperator()
+    op._job = op._prepare(ctx)
+    op._timer = object()
+    return op, ctx, rec
+
+
+def _event(kind, value="NOTHING"):
+    return type("Event", (), {"type": kind, "value": value})()
+
+
+def test_modal_timer_polls_until_done(blank):
+    code = "import time\nfor i in range(1, 4):\n print(f'spot {i}/3', flush=True); time.sleep(0.1)"
+    op, ctx, rec = _modal_op([sys.executable, "-c", code])
+    assert jobs.active("simulation") is op._job
+    result, t0 = {"PASS_THROUGH"}, time.monotonic()
+    while result == {"PASS_THROUGH"} and time.monotonic() - t0 < 30:
+        assert op.modal(ctx, _event("MOUSEMOVE")) == {"PASS_THROUGH"}  # the user keeps working
+        result = op.modal(ctx, _event("TIMER"))
+        time.sleep(0.05)
+    assert result == {"FINISHED"}
+    assert any(t and "spot" in t and "Esc to cancel" in t for t in rec.status)
+    assert rec.status[-1] is None and rec.timers_removed == 1 and op.cleaned == 1
+    assert jobs.active("simulation") is None
+
+
+def test_modal_escape_cancels_and_reports(blank):
+    op, ctx, rec = _modal_op([sys.executable, "-c", "import time; time.sleep(60)"])
+    # a second job of the same kind is refused while one runs
+    with pytest.raises(Exception, match="already running"):
+        op._prepare(ctx)
+    assert op.modal(ctx, _event("TIMER")) == {"PASS_THROUGH"}
+    t0 = time.monotonic()
+    assert op.modal(ctx, _event("ESC", "PRESS")) == {"CANCELLED"}
+    assert time.monotonic() - t0 < 6.0
+    assert op.reports[-1][0] == "WARNING" and "cancelled" in op.reports[-1][1]
+    assert op._job.returncode is not None and jobs.active("simulation") is None and op.cleaned == 1
+
+
+def test_modal_failure_is_an_error_report(blank):
+    op, ctx, rec = _modal_op([sys.executable, "-c", "import sys; print('Error: no camera'); sys.exit(2)"])
+    result, t0 = {"PASS_THROUGH"}, time.monotonic()
+    while result == {"PASS_THROUGH"} and time.monotonic() - t0 < 30:
+        result = op.modal(ctx, _event("TIMER"))
+        time.sleep(0.05)
+    assert result == {"CANCELLED"}
+    assert op.reports[-1][0] == "ERROR" and "exit code 2" in op.reports[-1][1] and "no camera" in op.reports[-1][1]
