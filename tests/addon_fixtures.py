@@ -141,6 +141,17 @@ class _OpProps:
         self._log.append(("op_prop", self._idname, key))
 
 
+def _check_call(method: str, kw: dict):
+    """Keyword arguments and icon names as the real UILayout method accepts them (a bad icon is a
+    TypeError in Blender's draw, which leaves the panel empty)."""
+    fn = bpy.types.UILayout.bl_rna.functions[method]
+    params = set(fn.parameters.keys())
+    assert set(kw) <= params, f"UILayout.{method}() has no argument(s) {sorted(set(kw) - params)}"
+    if "icon" in kw:
+        icons = fn.parameters["icon"].enum_items.keys()
+        assert kw["icon"] in icons, f"unknown icon {kw['icon']!r}"
+
+
 class RecordingLayout:
     """A UILayout stand-in: records prop/operator/label calls and checks names exist on the data."""
 
@@ -154,33 +165,49 @@ class RecordingLayout:
         assert key in self._ATTRS, f"UILayout has no attribute {key!r}"
         object.__setattr__(self, key, value)
 
-    def _child(self, *a, **kw):
+    def row(self, **kw):
+        _check_call("row", kw)
         return RecordingLayout(self.log)
 
-    row = column = box = split = grid_flow = column_flow = _child
+    def column(self, **kw):
+        _check_call("column", kw)
+        return RecordingLayout(self.log)
+
+    def box(self):
+        return RecordingLayout(self.log)
+
+    def split(self, **kw):
+        _check_call("split", kw)
+        return RecordingLayout(self.log)
 
     def prop(self, data, prop, **kw):
+        _check_call("prop", kw)
         assert data is not None, f"prop({prop!r}) drawn from None"
         assert prop in data.bl_rna.properties.keys(), f"{data.bl_rna.identifier} has no property {prop!r}"
         self.log.append(("prop", data.bl_rna.identifier, prop))
 
     def operator(self, idname, **kw):
+        _check_call("operator", kw)
         _operator_rna(idname)
         self.log.append(("operator", idname))
         return _OpProps(idname, self.log)
 
     def label(self, text="", **kw):
+        _check_call("label", kw)
         assert isinstance(text, str)
         self.log.append(("label", text))
 
     def separator(self, **kw):
+        _check_call("separator", kw)
         self.log.append(("separator",))
 
     def progress(self, factor=0.0, type="BAR", text=""):
+        assert type in bpy.types.UILayout.bl_rna.functions["progress"].parameters["type"].enum_items.keys()
         assert 0.0 <= factor <= 1.0
         self.log.append(("progress", factor, text))
 
     def template_list(self, listtype, list_id, dataptr, propname, active_dataptr, active_propname, **kw):
+        _check_call("template_list", kw)
         assert hasattr(bpy.types, listtype), f"no UIList {listtype}"
         for data, name in ((dataptr, propname), (active_dataptr, active_propname)):
             assert name in data.bl_rna.properties.keys(), f"{data.bl_rna.identifier} has no property {name!r}"

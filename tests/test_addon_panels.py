@@ -90,6 +90,12 @@ def test_the_stub_catches_typos(blank):
     def bad_operator_prop(self, context):
         self.layout.operator("platolidar.cancel_job").knd = "simulation"
 
-    for draw in (bad_prop, bad_operator, bad_operator_prop):
+    def bad_icon(self, context):
+        self.layout.operator("platolidar.simulate", icon="RENDER_STIL")
+
+    def bad_argument(self, context):
+        self.layout.prop(s, "width", txt="W")
+
+    for draw in (bad_prop, bad_operator, bad_operator_prop, bad_icon, bad_argument):
         with pytest.raises(AssertionError):
             draw(SimpleNamespace(layout=RecordingLayout()), bpy.context)
