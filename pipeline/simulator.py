@@ -237,7 +237,11 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
         timings["geometry_pass_s"] = time.perf_counter() - t0
         for p in plans:
             first_bounce_pixel(p, sensor, scene, depsgraph, geometry)
+        t0 = time.perf_counter()
         g_bound = window_bins_bound(plans, sensor, geometry)
+        if cfg.bounces == 3:      # third-order light spreads over long paths: keep every bin
+            g_bound = sensor.bins
+        t0 = _tick(timings, "window_bound_s", t0)
         ambient = renderer.render_ambient() if (cfg.ambient_per_bin > 0) else None
         ambient_scale = None
         if ambient is not None:
@@ -265,8 +269,11 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
                     what = "unchanged, reused"
                     lay = old.manifest.layout
                 else:
-                    tr, lay = simulate_spot(p, renderer, sensor, noise, geometry, g_bound, ambient_scale, cfg, vpl)
+                    tr, lay = simulate_spot(p, renderer, sensor, noise, geometry, g_bound, ambient_scale, cfg, vpl,
+                                            timings)
+                    t1 = time.perf_counter()
                     writer.write_transient(p.id, tr, lay.sample_type)
+                    _tick(timings, "write_s", t1)
                     what = "rendered"
                 if layout is not None and (lay.kind, lay.window_bins) != (layout.kind, layout.window_bins):
                     raise SimulationError(f"internal: spot {p.id} has layout {lay} unlike {layout}")
@@ -297,25 +304,36 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
     finally:
         renderer.close()
     timings["total_s"] = time.perf_counter() - t_start
+    log("timings: " + ", ".join(f"{k} {v:.2f}" for k, v in timings.items() if k != "spot_s"))
     return {"spots": len(plans), "timings": timings}
 
 
-def simulate_spot(p, renderer, sensor, noise, geometry, g_bound, ambient_scale, cfg, vpl):
+def _tick(timings, key, t0):
+    timings[key] = timings.get(key, 0.0) + time.perf_counter() - t0
+    return time.perf_counter()
+
+
+def simulate_spot(p, renderer, sensor, noise, geometry, g_bound, ambient_scale, cfg, vpl, timings):
     """Render, bin and apply the sensor model for one spot: (Transient, TransientLayout)."""
     pos, nrm, alb, valid = geometry
     o, c = np.asarray(sensor.laser_origin), sensor.sensor_origin
+    t0 = time.perf_counter()
     radiance = renderer.render_emitter(p.first_bounce, p.normal, p.albedo * LASER_POWER_W, cfg.footprint_radius_m,
                                        name=f"spot_{p.id}")
+    t0 = _tick(timings, "render_s", t0)
     try:
         expected = transient_binning.bin_two_bounce(pos, radiance, valid, p.first_bounce, o, c, sensor,
                                                     first_bounce_pixel=p.pixel,
                                                     first_bounce_radiance=p.first_bounce_radiance)
+        t0 = _tick(timings, "binning_s", t0)
         if vpl is not None:
             vpl.add(expected, p, renderer, sensor, geometry)
+            t0 = _tick(timings, "third_bounce_s", t0)
         path = transient_binning.expected_return_path(pos, valid, p.first_bounce, o, c)
         rng = np.random.default_rng([cfg.seed, p.id])   # per spot: a spot's noise does not depend on the others
         tr, layout = sensor_model.apply_sensor(expected, sensor, noise, rng, path, first_bounce_pixel=p.pixel,
                                                ambient_scale=ambient_scale)
+        t0 = _tick(timings, "sensor_model_s", t0)
     except ValueError as exc:
         raise SimulationError(f"spot {p.id}: {exc}") from None
     if layout.kind == "windowed" and not sensor.time_gate.enabled and layout.window_bins != g_bound:
@@ -323,4 +341,5 @@ def simulate_spot(p, renderer, sensor, noise, geometry, g_bound, ambient_scale, 
             raise SimulationError(f"internal: spot {p.id} needs {layout.window_bins} bins > bound {g_bound}")
         tr = sensor_model.widen_window(tr, g_bound)
         layout = TransientLayout("windowed" if g_bound < sensor.bins else "dense", g_bound, layout.sample_type)
+    _tick(timings, "sensor_model_s", t0)
     return tr, layout
