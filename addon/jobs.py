@@ -11,7 +11,6 @@ import os
 import re
 import signal
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -250,7 +249,3 @@ def cancel_all():
         if job.returncode is None:
             job.cancel(grace=2.0)
     _ACTIVE.clear()
-
-
-def this_python() -> str:
-    return sys.executable

@@ -9,7 +9,6 @@ from __future__ import annotations
 import math
 import random
 
-import bpy
 from mathutils import Vector
 
 from .config_io import lidar_camera
@@ -132,11 +131,6 @@ def select_diverse(points, normals, k: int, seed: int) -> list[int]:
                                np.array([tuple(v) for v in normals], np.float64).reshape(-1, 3),
                                int(k), np.random.default_rng(seed))
     return [int(i) for i in idx]
-
-
-def evaluated_depsgraph(context=None):
-    context = context or bpy.context
-    return context.evaluated_depsgraph_get()
 
 
 def check_spots(scene, depsgraph) -> list[str]:

@@ -88,9 +88,9 @@ def test_settings_survive_save_and_reload(room, tmp_path):
     assert [(sp.name, sp.enabled, tuple(sp.target)) for sp in s.spots] == spots
     assert s.camera is not None and s.camera.name == "LidarCam"
     # the save handler stored the same settings for the headless simulator
-    cfg = SimulationConfig.from_json(bpy.data.texts[CONFIG_TEXT_NAME].as_string())
-    from addon.config_io import settings_to_config
-    assert cfg.to_dict() == settings_to_config(bpy.context.scene).to_dict()
+    from addon.config_io import read_config_text, settings_to_config
+    cfg = read_config_text()
+    assert cfg is not None and cfg.to_dict() == settings_to_config(bpy.context.scene).to_dict()
 
 
 def test_save_handler_refreshes_stale_text_and_skips_untouched_files(blank, tmp_path):
