@@ -273,3 +273,17 @@ def test_modal_failure_is_an_error_report(blank):
         time.sleep(0.05)
     assert result == {"CANCELLED"}
     assert op.reports[-1][0] == "ERROR" and "exit code 2" in op.reports[-1][1] and "no camera" in op.reports[-1][1]
+
+
+def test_reconstruction_output_mesh_choice(tmp_path):
+    from addon.operators.reconstruct import reported_mesh
+    assert reported_mesh(str(tmp_path)) is None
+    (tmp_path / "a.obj").write_text("o")
+    assert reported_mesh(str(tmp_path)) == str(tmp_path / "a.obj")
+    (tmp_path / ".partial.ply").write_text("p")  # a write in progress is never picked
+    assert reported_mesh(str(tmp_path)) == str(tmp_path / "a.obj")
+    for name in ("mesh.glb", "mesh.obj", "mesh.ply"):
+        (tmp_path / name).write_text("m")
+    (tmp_path / "fit.json").write_text(json.dumps({"mesh_files": {"glb": str(tmp_path / "mesh.glb"),
+                                                                  "ply": "mesh.ply", "obj": "mesh.obj"}}))
+    assert reported_mesh(str(tmp_path)) == str(tmp_path / "mesh.ply")

@@ -1,5 +1,6 @@
 """Reconstruct: `python -m torch_recon fit` in the external Python from the preferences."""
 
+import json
 import os
 
 import bpy
@@ -22,6 +23,19 @@ def newest_mesh(folder: str) -> str | None:
                 p = os.path.join(root, name)
                 found.append((round(os.path.getmtime(p), 1), -MESH_EXTENSIONS.index(ext), p))
     return max(found)[2] if found else None
+
+
+def reported_mesh(folder: str) -> str | None:
+    """The mesh named in the reconstructor's fit.json (a .ply when there is one), else the newest mesh."""
+    try:
+        with open(os.path.join(folder, "fit.json")) as f:
+            files = [str(v) for v in (json.load(f).get("mesh_files") or {}).values()]
+    except (OSError, ValueError, AttributeError):
+        files = []
+    files = [p if os.path.isabs(p) else os.path.join(folder, p) for p in files]
+    files = sorted((p for p in files if os.path.isfile(p)),
+                   key=lambda p: os.path.splitext(p)[1].lower() != ".ply")
+    return files[0] if files else newest_mesh(folder)
 
 
 class PLATOLIDAR_OT_reconstruct(JobOperatorMixin, bpy.types.Operator):
@@ -56,7 +70,7 @@ class PLATOLIDAR_OT_reconstruct(JobOperatorMixin, bpy.types.Operator):
                         env=jobs.python_env(paths))
 
     def finish(self, context, job):
-        mesh = newest_mesh(self._out_dir) if os.path.isdir(self._out_dir) else None
+        mesh = reported_mesh(self._out_dir) if os.path.isdir(self._out_dir) else None
         if mesh is None:
             raise UserError(f"The reconstructor finished but wrote no .ply/.obj under {self._out_dir}")
         context.scene.platolidar.import_path = mesh
