@@ -5,15 +5,26 @@ Stored in the .blend with the scene. ``config_io`` turns them into a
 Times in ps (as typed), lengths in metres, as in the config.
 """
 
-from __future__ import annotations
-
 import bpy
 from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, FloatVectorProperty,
                        IntProperty, PointerProperty, StringProperty)
 
 
-# paths may start with '//' (relative to the .blend)
-_BLEND_RELATIVE = {"PATH_SUPPORTS_BLEND_RELATIVE"}
+def _blend_relative_option() -> set:
+    """Paths may start with '//' (relative to the .blend): Blender 5.0 wants this declared, older
+    versions lack the flag. Ask Blender by registering a throwaway class."""
+    flag = {"PATH_SUPPORTS_BLEND_RELATIVE"}
+    probe = type("PLATOLIDAR_PG_probe", (bpy.types.PropertyGroup,),
+                 {"__annotations__": {"path": StringProperty(subtype="FILE_PATH", options=flag)}})
+    try:
+        bpy.utils.register_class(probe)
+    except (ValueError, TypeError):
+        return set()
+    bpy.utils.unregister_class(probe)
+    return flag
+
+
+_BLEND_RELATIVE = _blend_relative_option()
 
 
 def _redraw_views(self, context):
