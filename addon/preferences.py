@@ -1,7 +1,5 @@
 """Add-on preferences: the external tools the add-on runs as subprocesses."""
 
-from __future__ import annotations
-
 import bpy
 from bpy.props import StringProperty
 

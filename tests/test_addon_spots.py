@@ -132,3 +132,45 @@ def test_ray_segments_for_drawing(room):
     assert segs["active"][0] == pytest.approx((0.0, -3.0, 1.5))
     assert segs["active"][1] == pytest.approx(tuple(room.platolidar.spots[1].target))
     assert draw_spots._handle is None  # background mode: no draw handler registered
+
+
+def _fake_view(cam, width=200, height=100, x=10, y=20):
+    """A 3D View whose viewport looks through `cam` (what view3d_utils reads from a real one)."""
+    from types import SimpleNamespace as NS
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    view = cam.matrix_world.inverted()
+    proj = cam.calc_matrix_camera(depsgraph, x=width, y=height)
+    rv3d = NS(is_perspective=True, view_matrix=view, perspective_matrix=proj @ view)
+    region = NS(type="WINDOW", x=x, y=y, width=width, height=height, data=rv3d)
+    sidebar = NS(type="UI", x=x + width, y=y, width=50, height=height, data=None)
+    return NS(type="VIEW_3D", regions=[sidebar, region]), region
+
+
+def test_view_region_under_mouse(room):
+    from addon.operators.add_spot_click import view_region_under_mouse
+    area, region = _fake_view(room.platolidar.camera)
+    assert view_region_under_mouse([area], 110, 70) == (region, (100, 50))
+    assert view_region_under_mouse([area], 215, 70) == (None, None)  # on the sidebar
+    assert view_region_under_mouse([area], 5, 70) == (None, None)    # outside
+
+
+def test_click_modal_adds_the_spot_under_the_mouse(room):
+    """The modal handler with a recorded window: a click at the viewport centre adds a spot straight
+    ahead of the camera (the wall at y = 3); Esc ends it."""
+    from types import SimpleNamespace as NS
+    from addon.operators.add_spot_click import PLATOLIDAR_OT_add_spot_click as Op
+    area, region = _fake_view(room.platolidar.camera)
+    calls = []
+    window = NS(screen=NS(areas=[area]), cursor_modal_restore=lambda: calls.append("restore"))
+    ctx = NS(window=window, area=NS(header_text_set=lambda t: calls.append(("header", t))), scene=room,
+             evaluated_depsgraph_get=bpy.context.evaluated_depsgraph_get)
+    op = NS(_added=0, reports=[])
+    op.report = lambda kind, msg: op.reports.append(msg)
+    op._end = lambda context: Op._end(op, context)
+    click = NS(type="LEFTMOUSE", value="PRESS", mouse_x=110, mouse_y=70)
+    assert Op.modal(op, ctx, click) == {"RUNNING_MODAL"}
+    assert tuple(room.platolidar.spots[0].target) == pytest.approx((0.0, 3.0, 1.5), abs=1e-4)
+    assert Op.modal(op, ctx, NS(type="LEFTMOUSE", value="PRESS", mouse_x=215, mouse_y=70)) == {"PASS_THROUGH"}
+    assert Op.modal(op, ctx, NS(type="MOUSEMOVE", value="NOTHING", mouse_x=0, mouse_y=0)) == {"PASS_THROUGH"}
+    assert Op.modal(op, ctx, NS(type="ESC", value="PRESS", mouse_x=0, mouse_y=0)) == {"FINISHED"}
+    assert ("header", None) in calls and "restore" in calls and len(room.platolidar.spots) == 1

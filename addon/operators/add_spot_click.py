@@ -27,6 +27,22 @@ def spot_from_view_ray(context, origin, direction):
     return add_spot(scene, hit)
 
 
+def view_region_under_mouse(areas, mouse_x: int, mouse_y: int):
+    """(region, (x, y) in region pixels) of the 3D viewport region under the window-space mouse.
+
+    The operator starts from a sidebar button, so the event's own region is the sidebar; the
+    click must be mapped to the 3D View's main ('WINDOW') region it lands in, if any.
+    """
+    for area in areas:
+        if area.type != "VIEW_3D":
+            continue
+        for region in area.regions:
+            if region.type == "WINDOW" and region.x <= mouse_x < region.x + region.width \
+                    and region.y <= mouse_y < region.y + region.height:
+                return region, (mouse_x - region.x, mouse_y - region.y)
+    return None, None
+
+
 class PLATOLIDAR_OT_add_spot_click(bpy.types.Operator):
     """Click surfaces in the 3D View to add laser spots (Esc or right-click when done)"""
 
@@ -73,13 +89,11 @@ class PLATOLIDAR_OT_add_spot_click(bpy.types.Operator):
         if event.type in {"ESC", "RIGHTMOUSE"} and event.value == "PRESS":
             return self._end(context)
         if event.type == "LEFTMOUSE" and event.value == "PRESS":
-            region, rv3d = context.region, context.region_data
-            # the click may land on the sidebar or header: only the main view region casts
-            if region is None or region.type != "WINDOW" or rv3d is None:
-                return {"PASS_THROUGH"}
-            coord = (event.mouse_region_x, event.mouse_region_y)
-            origin = view3d_utils.region_2d_to_origin_3d(region, rv3d, coord)
-            direction = view3d_utils.region_2d_to_vector_3d(region, rv3d, coord)
+            region, coord = view_region_under_mouse(context.window.screen.areas, event.mouse_x, event.mouse_y)
+            if region is None or region.data is None:
+                return {"PASS_THROUGH"}  # a click on a header, the sidebar or another editor
+            origin = view3d_utils.region_2d_to_origin_3d(region, region.data, coord)
+            direction = view3d_utils.region_2d_to_vector_3d(region, region.data, coord)
             try:
                 sp = spot_from_view_ray(context, origin, direction)
                 self._added += 1
