@@ -36,13 +36,9 @@ if str(ROOT) not in sys.path:
 
 def _add_venv_site_packages():
     """Blender's bundled Python lacks OpenEXR/trimesh/scipy: borrow the project's .venv (appended last)."""
-    missing = False
-    for mod in ("OpenEXR", "trimesh", "scipy"):
-        try:
-            __import__(mod)
-        except ImportError:
-            missing = True
-    if missing:
+    import importlib.util
+
+    if any(importlib.util.find_spec(mod) is None for mod in ("OpenEXR", "trimesh", "scipy")):
         for sp in sorted(glob.glob(str(ROOT / ".venv" / "lib" / "python3.*" / "site-packages"))):
             if sp not in sys.path:
                 sys.path.append(sp)
