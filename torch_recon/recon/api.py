@@ -1,0 +1,149 @@
+"""`fit(...)`: measurements (or a dataset) -> density volume -> mesh, in one call.
+
+    from torch_recon.recon import fit
+    result = fit("datasets/cave", mode="fast", out="out/fit")
+    result.mesh_files, result.train.stopped, result.total_seconds
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..frames import pixel_rays
+from ..measurements import Measurements
+from .config import FitConfig
+from .data import build_ray_data
+from .models import build_model
+from .trainer import TrainResult, train
+
+VOLUME_NAME = "volume.npz"
+REPORT_NAME = "fit.json"
+
+
+@dataclass
+class FitResult:
+    mode: str
+    model: object
+    train: TrainResult
+    setup_seconds: float              # measurements -> rays -> initial field
+    total_seconds: float              # setup + optimisation + volume (+ mesh export)
+    volume: np.ndarray                # (nx, ny, nz) opacity per voxel, in [0, 1]
+    bbox_min: np.ndarray
+    bbox_max: np.ndarray
+    level: float
+    source_hash: str
+    out_dir: Path | None = None
+    mesh_files: dict = field(default_factory=dict)
+    metadata: dict = field(default_factory=dict)
+
+    def render_depth(self, camera_to_world, width: int, height: int, fov_rad: float, fov_axis: str = "x"):
+        """Range image (H, W) of the fitted field from any camera (volume rendering)."""
+        o, d = pixel_rays(camera_to_world, width, height, fov_rad, fov_axis)
+        dev = self.model.device
+        t = lambda a: torch.as_tensor(a.reshape(-1, 3), dtype=torch.float32, device=dev)  # noqa: E731
+        return self.model.render_depth(t(o), t(d)).cpu().numpy().reshape(height, width)
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ValueError("device: 'cuda' requested but torch sees no CUDA device")
+    return torch.device(name)
+
+
+def measurements_hash(meas: Measurements) -> str:
+    h = hashlib.sha256()
+    h.update(np.asarray(meas.camera_to_world, np.float64).tobytes())
+    for s in meas.spots:
+        for a in (s.first_bounce, s.path_length, s.signal, s.shadow, s.excluded):
+            h.update(np.ascontiguousarray(a).tobytes())
+    if meas.visible_depth is not None:
+        h.update(np.ascontiguousarray(meas.visible_depth).tobytes())
+    return "measurements:" + h.hexdigest()
+
+
+def load_source(source, progress: bool = True):
+    """Measurements and a hash naming the data: from a Measurements, a .npz, or a dataset directory."""
+    if isinstance(source, Measurements):
+        return source, measurements_hash(source)
+    path = Path(source)
+    if path.is_file():
+        m = Measurements.load(path)
+        return m, measurements_hash(m)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such dataset directory or measurements file")
+    if (path / "measurements.npz").is_file() and not (path / "dataset.json").is_file():
+        m = Measurements.load(path / "measurements.npz")
+        return m, measurements_hash(m)
+    from ..dataset import load_dataset
+    from ..preprocess import preprocess_dataset
+
+    ds = load_dataset(path)
+    meas = preprocess_dataset(ds)
+    return meas, "dataset:" + ds.content_hash()
+
+
+def fit(source, mode: str = "fast", out=None, config: FitConfig | None = None, on_eval=None,
+        export: bool = True, fault_hook=None, stop_after: int | None = None) -> FitResult:
+    """Fit a density field to two-bounce measurements and (with `out` and `export`) write the mesh."""
+    t_start = time.perf_counter()
+    cfg = config or FitConfig(mode=mode)
+    if config is not None and mode != cfg.mode:
+        cfg = FitConfig.from_dict({**cfg.to_dict(), "mode": mode})
+    torch.set_num_threads(max(1, int(cfg.threads)))
+    torch.manual_seed(cfg.seed)
+    dev = resolve_device(cfg.device)
+    meas, src_hash = load_source(source, cfg.progress)
+    out_dir = None
+    if out is not None:
+        out_dir = Path(out)
+        out_dir.mkdir(parents=True, exist_ok=True)
+    data = build_ray_data(meas).to(dev)
+    gen = torch.Generator(device=dev)
+    gen.manual_seed(cfg.seed)
+    meta = {"camera_to_world": np.asarray(meas.camera_to_world), "fov_rad": meas.fov_rad, "fov_axis": meas.fov_axis}
+    model = build_model(data, cfg, meta, gen)
+    setup = time.perf_counter() - t_start
+    tr = train(model, data, cfg, gen, out_dir, on_eval=on_eval, fault_hook=fault_hook, stop_after=stop_after)
+    vol, lo, hi = model.density_volume()
+    result = FitResult(mode=cfg.mode, model=model, train=tr, setup_seconds=setup, total_seconds=0.0,
+                       volume=vol, bbox_min=lo, bbox_max=hi, level=cfg.mesh_level, source_hash=src_hash,
+                       out_dir=out_dir)
+    result.metadata = {"method": f"platolidar-{cfg.mode}", "settings": cfg.to_dict(), "source_hash": src_hash,
+                       "device": str(dev), "steps": tr.steps_done, "stopped": tr.stopped,
+                       "setup_seconds": round(setup, 3), "train_seconds": round(tr.train_seconds, 3),
+                       "nan_restores": tr.nan_restores, "resumed_from": tr.resumed_from}
+    if out_dir is not None:
+        tmp = out_dir / (VOLUME_NAME + ".tmp.npz")
+        np.savez_compressed(tmp, opacity=vol.astype(np.float32), bbox_min=lo, bbox_max=hi, level=cfg.mesh_level)
+        tmp.replace(out_dir / VOLUME_NAME)
+        if export:
+            result.metadata["run_seconds"] = round(time.perf_counter() - t_start, 3)
+            result.mesh_files = export_volume(vol, lo, hi, cfg.mesh_level, out_dir / "mesh", result.metadata)
+    result.total_seconds = time.perf_counter() - t_start
+    result.metadata["run_seconds"] = round(result.total_seconds, 3)
+    if out_dir is not None:
+        report = {**result.metadata, "mesh_files": {k: str(v) for k, v in result.mesh_files.items()},
+                  "history_tail": tr.history[-5:]}
+        (out_dir / REPORT_NAME).write_text(json.dumps(report, indent=2, default=str) + "\n")
+    return result
+
+
+def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: dict) -> dict:
+    """Marching cubes + cleanup + UVs + .ply/.obj/.glb through the shared mesh exporter."""
+    from ..mesh_export import export_mesh
+
+    files = export_mesh(volume, bbox_min, bbox_max, level, out_path, metadata)
+    if isinstance(files, dict):
+        return files
+    if isinstance(files, (list, tuple)):
+        return {Path(f).suffix.lstrip("."): Path(f) for f in files}
+    return {"mesh": Path(files)}

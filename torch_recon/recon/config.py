@@ -1,0 +1,159 @@
+"""Settings of a fit, as dataclasses (JSON round-trip; every number a person may tune lives here).
+
+Two modes share the data, the losses and the evaluation:
+- ``platonerf``: the published method (NeRF MLP + positional encoding, 64 coarse + 128 fine samples,
+  1024 rays per step, MSE distance loss on path / 15 weighted 6000, MSE shadow loss on the secondary
+  ray's transmittance, distance loss alone for the first 12.5 % of the steps, loss x 100).
+- ``fast``: the same measurements and losses on an explicit density grid that starts from the closed-form
+  visible depth and shadow carving, samples only occupied cells, runs coarse to fine, stops on a plateau.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields, is_dataclass
+
+MODES = ("fast", "platonerf")
+
+
+@dataclass
+class LossConfig:
+    """The paper's losses (both modes)."""
+
+    path_scale_m: float = 15.0        # optical paths are divided by this before the MSE (paper: 15)
+    distance_weight: float = 6000.0   # paper's dist_weight for the chair scene
+    shadow_weight: float = 1.0        # weight of the mean squared transmittance on shadowed rays (target 0)
+    lit_weight: float = 1.0           # weight of the mean squared (1 - transmittance) on lit rays
+    loss_scale: float = 100.0         # paper: the total is multiplied by 100
+    warmup_fraction: float = 0.125    # distance loss alone for this fraction of the steps (25k of 200k)
+    secondary_offset_m: float = 0.0   # the secondary ray x -> l starts/ends this far from x and l
+
+
+@dataclass
+class FastConfig:
+    """Explicit multi-resolution density grid."""
+
+    coarse_resolution: int = 64       # voxels along the longest bbox side, first level
+    resolution: int = 128             # final level (coarse to fine: the coarse result is upsampled)
+    coarse_fraction: float = 0.4      # fraction of the steps spent on the coarse level
+    bbox_margin_voxels: float = 1.5   # bbox = robust extent of the observed surfaces + this margin
+    density_scale: float = 50.0       # sigma = density_scale * softplus(raw), in 1 / m
+    raw_free: float = -10.0           # raw density of free space at initialisation (sigma ~ 0.002 / m)
+    raw_occupied: float = 4.0         # raw density of occupied space (sigma ~ 200 / m: opaque in 1 voxel)
+    carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
+    surface_margin_voxels: float = 1.0  # camera free space stops this far before the visible surface
+    occupancy_threshold: float = 0.01  # cells whose neighbourhood has sigma * voxel below this are skipped
+    occupancy_update_every: int = 25  # steps between occupancy refreshes
+    step_voxels: float = 0.5          # ray marching step in voxels
+    secondary_offset_voxels: float = 1.5  # secondary rays x -> l skip this much next to x and l
+    tv_weight: float = 1e-4           # total-variation smoothness on the raw density
+    lr: float = 0.1
+    rays_per_batch: int = 4096
+    steps: int = 400
+
+
+@dataclass
+class PlatoNeRFConfig:
+    """The published architecture and sampling (nerf-pytorch based)."""
+
+    depth: int = 8
+    width: int = 256
+    skip: int = 4
+    pe_frequencies: int = 10
+    coarse_samples: int = 64
+    fine_samples: int = 128
+    rays_per_batch: int = 1024
+    lr: float = 5e-4
+    lr_decay_steps: int = 500_000     # lr * 0.1 ** (step / lr_decay_steps) (paper: lrate_decay 500 x 1000)
+    steps: int = 200_000
+    near_m: float = 0.0
+    far_m: float | None = None        # None: where the ray leaves the scene's box (paper: fixed 6 m)
+    volume_resolution: int = 128      # density sampled on this grid for the mesh
+
+
+@dataclass
+class FitConfig:
+    mode: str = "fast"
+    seed: int = 0
+    device: str = "auto"              # 'auto' (CUDA when present), 'cpu', 'cuda'
+    threads: int = 2                  # torch CPU threads
+    max_seconds: float | None = None  # wall-clock budget for the optimisation (None: run all steps)
+    steps: int | None = None          # overrides the mode's default step count
+    checkpoint_every_s: float = 30.0
+    resume: bool = True               # continue from OUT/checkpoint.pt when it matches this config
+    plateau_patience: int = 60        # early stop: steps without a relative improvement of plateau_rel_tol
+    plateau_rel_tol: float = 1e-3
+    max_nan_restores: int = 3
+    progress: bool = True
+    eval_every_s: float | None = None  # benchmark hook: call `on_eval` this often (seconds of training)
+    mesh_level: float = 0.5           # iso level on opacity over one voxel
+    loss: LossConfig = field(default_factory=LossConfig)
+    fast: FastConfig = field(default_factory=FastConfig)
+    platonerf: PlatoNeRFConfig = field(default_factory=PlatoNeRFConfig)
+
+    def __post_init__(self):
+        if self.mode not in MODES:
+            raise ValueError(f"mode: expected one of {list(MODES)}, got {self.mode!r}")
+        if not 0.0 <= self.loss.warmup_fraction <= 1.0:
+            raise ValueError(f"loss.warmup_fraction: expected a fraction in [0, 1], got {self.loss.warmup_fraction}")
+        if self.fast.coarse_resolution < 4 or self.fast.resolution < self.fast.coarse_resolution:
+            raise ValueError("fast.resolution must be >= fast.coarse_resolution >= 4")
+        if self.device not in ("auto", "cpu", "cuda"):
+            raise ValueError(f"device: expected 'auto', 'cpu' or 'cuda', got {self.device!r}")
+
+    @property
+    def total_steps(self) -> int:
+        if self.steps is not None:
+            return int(self.steps)
+        return self.fast.steps if self.mode == "fast" else self.platonerf.steps
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "FitConfig":
+        return _from_dict(cls, d, "config")
+
+
+def _from_dict(cls, d, path):
+    if not isinstance(d, dict):
+        raise ValueError(f"{path}: expected an object, got {type(d).__name__}")
+    known = {f.name: f for f in fields(cls)}
+    unknown = set(d) - set(known)
+    if unknown:
+        raise ValueError(f"{path}: unknown setting(s) {sorted(unknown)}; known: {sorted(known)}")
+    kw = {}
+    for name, value in d.items():
+        default = getattr(cls(), name) if name not in ("loss", "fast", "platonerf") else None
+        sub = {"loss": LossConfig, "fast": FastConfig, "platonerf": PlatoNeRFConfig}.get(name)
+        if sub is not None and cls is FitConfig:
+            kw[name] = _from_dict(sub, value, f"{path}.{name}")
+        else:
+            if is_dataclass(default):
+                raise ValueError(f"{path}.{name}: nested settings not supported here")
+            kw[name] = value
+    return cls(**kw)
+
+
+def override(cfg: FitConfig, assignments: list[str]) -> FitConfig:
+    """Apply 'section.key=value' strings (CLI --set), values parsed as JSON when possible."""
+    import json
+
+    d = cfg.to_dict()
+    for a in assignments:
+        if "=" not in a:
+            raise ValueError(f"--set {a!r}: expected KEY=VALUE, e.g. fast.resolution=96")
+        key, raw = a.split("=", 1)
+        try:
+            value = json.loads(raw)
+        except json.JSONDecodeError:
+            value = raw
+        node = d
+        parts = key.split(".")
+        for p in parts[:-1]:
+            if not isinstance(node.get(p), dict):
+                raise ValueError(f"--set {key}: no settings section {p!r}")
+            node = node[p]
+        if parts[-1] not in node:
+            raise ValueError(f"--set {key}: unknown setting {parts[-1]!r}")
+        node[parts[-1]] = value
+    return FitConfig.from_dict(d)

@@ -1,0 +1,107 @@
+"""Measurements -> training rays: one (spot, pixel) pair per usable measurement, as flat tensors.
+
+A pair is usable when the pixel is not excluded and is either lit (a two-bounce peak with a finite
+path) or shadowed. Pixels are shared between spots, so camera rays are stored once per pixel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..frames import pixel_rays
+from ..measurements import Measurements
+
+
+@dataclass
+class RayData:
+    sensor_origin: torch.Tensor    # (3,) c
+    laser_origin: torch.Tensor     # (3,) o
+    pixel_dirs: torch.Tensor       # (P, 3) unit camera-ray directions, P = H * W (row-major)
+    spot_points: torch.Tensor      # (S, 3) first-bounce points l_k
+    laser_to_spot: torch.Tensor    # (S,) |l_k - o|
+    pair_pixel: torch.Tensor       # (N,) long
+    pair_spot: torch.Tensor        # (N,) long
+    path: torch.Tensor             # (N,) measured optical path (m); NaN where shadowed
+    lit: torch.Tensor              # (N,) bool: a two-bounce peak (signal)
+    shadowed: torch.Tensor         # (N,) bool
+    visible_depth: torch.Tensor    # (P,) closed-form range along the pixel ray; NaN unknown
+    height: int
+    width: int
+
+    @property
+    def n_pairs(self) -> int:
+        return int(self.pair_pixel.shape[0])
+
+    def to(self, device) -> "RayData":
+        for k, v in vars(self).items():
+            if isinstance(v, torch.Tensor):
+                setattr(self, k, v.to(device))
+        return self
+
+    def lit_index(self) -> torch.Tensor:
+        return torch.nonzero(self.lit, as_tuple=False).squeeze(1)
+
+    def sample(self, n: int, generator: torch.Generator, lit_only: bool = False) -> torch.Tensor:
+        """n pair indices drawn uniformly (with replacement) from the lit pairs or all of them.
+
+        With no lit pair at all (everything in shadow) the warm-up draws from all pairs: the
+        distance loss is then zero and only the shadow loss speaks.
+        """
+        if self.n_pairs == 0:
+            raise ValueError("measurements: no usable (spot, pixel) pair (every pixel excluded or unlabelled)")
+        if lit_only and self._lit is None:
+            self._lit = self.lit_index()
+        pool = self._lit if lit_only and self._lit.numel() > 0 else None
+        size = self.n_pairs if pool is None else pool.numel()
+        i = torch.randint(0, size, (n,), generator=generator, device=generator.device).to(self.pair_pixel.device)
+        return i if pool is None else pool[i]
+
+    _lit: torch.Tensor | None = None
+
+    def scene_points(self) -> np.ndarray:
+        """Observed surface points (visible depth) and the spots: the extent of what was measured."""
+        d = self.visible_depth.cpu().numpy()
+        ok = np.isfinite(d)
+        x = self.sensor_origin.cpu().numpy() + self.pixel_dirs.cpu().numpy()[ok] * d[ok, None]
+        return np.concatenate([x, self.spot_points.cpu().numpy()], 0)
+
+
+def build_ray_data(meas: Measurements) -> RayData:
+    if not meas.spots:
+        raise ValueError("measurements: no spots")
+    h, w = meas.height, meas.width
+    _, dirs = pixel_rays(meas.camera_to_world, w, h, meas.fov_rad, meas.fov_axis)
+    c = np.asarray(meas.sensor_origin, np.float64)
+    o = np.asarray(meas.laser_origin, np.float64)
+    pix, spt, path, lit, shd, ls = [], [], [], [], [], []
+    for k, s in enumerate(meas.spots):
+        l = np.asarray(s.first_bounce, np.float64)
+        if l.shape != (3,) or not np.all(np.isfinite(l)):
+            raise ValueError(f"measurements: spot {s.spot_id}: first_bounce must be 3 finite numbers, got {l}")
+        for name in ("path_length", "signal", "shadow", "excluded"):
+            if getattr(s, name).shape != (h, w):
+                raise ValueError(f"measurements: spot {s.spot_id}: {name} has shape {getattr(s, name).shape}, "
+                                 f"expected {(h, w)}")
+        ls.append(l)
+        p = s.path_length.reshape(-1).astype(np.float32)
+        sig = s.signal.reshape(-1) & np.isfinite(p) & ~s.excluded.reshape(-1)
+        sh = s.shadow.reshape(-1) & ~s.signal.reshape(-1) & ~s.excluded.reshape(-1)
+        use = np.flatnonzero(sig | sh)
+        pix.append(use)
+        spt.append(np.full(len(use), k))
+        path.append(np.where(sig[use], p[use], np.nan))
+        lit.append(sig[use])
+        shd.append(sh[use])
+    ls = np.stack(ls)
+    vd = meas.visible_depth
+    vd = np.full(h * w, np.nan, np.float32) if vd is None else np.asarray(vd, np.float32).reshape(-1)
+    f32 = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
+    return RayData(sensor_origin=f32(c), laser_origin=f32(o), pixel_dirs=f32(dirs.reshape(-1, 3)),
+                   spot_points=f32(ls), laser_to_spot=f32(np.linalg.norm(ls - o, axis=1)),
+                   pair_pixel=torch.as_tensor(np.concatenate(pix), dtype=torch.long),
+                   pair_spot=torch.as_tensor(np.concatenate(spt), dtype=torch.long),
+                   path=f32(np.concatenate(path)), lit=torch.as_tensor(np.concatenate(lit)),
+                   shadowed=torch.as_tensor(np.concatenate(shd)), visible_depth=f32(vd), height=h, width=w)

@@ -1,0 +1,248 @@
+"""The two reconstructors behind one interface; both use `pair_loss` (the paper's losses).
+
+A model owns its field(s) and optimiser and exposes: `loss(idx, step, total, gen)`, `before_step`,
+`render_depth(origins, dirs)` (evaluation, no grad), `density_volume()` (for the mesh) and
+`state_dict` / `load_state_dict` (checkpoints).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from .config import FitConfig
+from .data import RayData
+from .fields import DensityGrid, GridBox, NeRFField
+from .init import fov_xy, initial_grid, scene_bbox
+from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total_loss
+from .renderer import render_field, render_pruned, secondary_rays
+from .sampler import importance_positions, merged_intervals, ray_box, uniform_intervals
+
+
+def pair_loss(model, data: RayData, idx, step: int, total: int, cfg: FitConfig, offset: float):
+    """Distance (+ shadow after the warm-up) loss of the (spot, pixel) pairs `idx`."""
+    px, sp = data.pair_pixel[idx], data.pair_spot[idx]
+    dirs = data.pixel_dirs[px]
+    c = data.sensor_origin.expand_as(dirs)
+    l = data.spot_points[sp]
+    warm = in_warmup(step, total, cfg.loss)
+    loss = dirs.new_zeros(())
+    stats = {"dist": 0.0, "shadow": 0.0}
+    for depth in model.camera_depths(c, dirs):
+        x = c + dirs * depth[:, None]
+        o, u, near, far, _, length = secondary_rays(x, l, offset)
+        dist = distance_loss(predicted_path(depth, length, data.laser_to_spot[sp]), data.path[idx],
+                             data.lit[idx], cfg.loss)
+        shadow = None
+        if not warm:
+            shadow = sum(shadow_loss(t, data.lit[idx], data.shadowed[idx], cfg.loss)
+                         for t in model.segment_transmittances(o, u, near, far))
+            stats["shadow"] += float(shadow.detach())
+        stats["dist"] += float(dist.detach())
+        loss = loss + total_loss(dist, shadow, cfg.loss)
+    return loss, stats
+
+
+class FastModel:
+    """Explicit density grid, initialised from the measurements, occupancy-pruned marching."""
+
+    def __init__(self, data: RayData, cfg: FitConfig, meas_meta: dict):
+        self.data, self.cfg, self.fc = data, cfg, cfg.fast
+        self.meta = meas_meta
+        self.device = data.pixel_dirs.device
+        lo, hi = scene_bbox(data, 0.0)
+        fine_voxel = float(np.max(hi - lo)) / self.fc.resolution
+        lo, hi = scene_bbox(data, self.fc.bbox_margin_voxels * fine_voxel)
+        self.bbox = (lo, hi)
+        self.level = 0 if self.fc.coarse_fraction > 0 and self.fc.coarse_resolution < self.fc.resolution else 1
+        self.grid = self._initial(self.fc.coarse_resolution if self.level == 0 else self.fc.resolution)
+        self.occupancy = None
+        self.refresh_occupancy()
+        self.make_optimizer()
+
+    def _initial(self, res):
+        box = GridBox(self.bbox[0], self.bbox[1], res).to(self.device)
+        fx, fy = fov_xy(self.data.width, self.data.height, self.meta["fov_rad"], self.meta["fov_axis"])
+        return initial_grid(self.data, box, self.fc, self.meta["camera_to_world"], fx, fy,
+                            self.offset_for(box.voxel))
+
+    def offset_for(self, voxel):
+        return max(self.cfg.loss.secondary_offset_m, self.fc.secondary_offset_voxels * voxel)
+
+    @property
+    def offset(self):
+        return self.offset_for(self.grid.box.voxel)
+
+    @property
+    def step_len(self):
+        return self.fc.step_voxels * self.grid.box.voxel
+
+    def make_optimizer(self):
+        self.optimizer = torch.optim.Adam(self.grid.parameters(), lr=self.fc.lr)
+
+    def refresh_occupancy(self):
+        with torch.no_grad():
+            tau = self.grid.density_scale * F.softplus(self.grid.raw) * self.grid.box.voxel
+            occ = F.max_pool3d((tau > self.fc.occupancy_threshold).float(), 3, 1, 1) > 0
+            self.occupancy = occ[0, 0].permute(2, 1, 0).contiguous()
+            self.tau_step = (tau[0, 0] * self.fc.step_voxels).permute(2, 1, 0).contiguous()
+
+    def before_step(self, step: int, total: int) -> bool:
+        """Coarse -> fine switch and occupancy refresh; True when the optimiser was rebuilt."""
+        if self.level == 0 and step >= int(self.fc.coarse_fraction * total):
+            self.grid = self.grid.upsampled(self.fc.resolution)
+            self.level = 1
+            self.refresh_occupancy()
+            self.make_optimizer()
+            return True
+        if step > 0 and step % self.fc.occupancy_update_every == 0:
+            self.refresh_occupancy()
+        return False
+
+    def camera_depths(self, c, dirs):
+        near, far = ray_box(c, dirs, self.grid.box.bbox_min, self.grid.box.bbox_max)
+        return [render_pruned(self.grid, self.occupancy, c, dirs, near, torch.maximum(far, near),
+                              self.step_len, self.tau_step).depth]
+
+    def segment_transmittances(self, o, u, near, far):
+        return [render_pruned(self.grid, self.occupancy, o, u, near, far, self.step_len, self.tau_step).transmittance]
+
+    def loss(self, idx, step, total, gen):
+        loss, stats = pair_loss(self, self.data, idx, step, total, self.cfg, self.offset)
+        if self.fc.tv_weight > 0:
+            r = self.grid.raw
+            tv = sum(((r.diff(dim=d)) ** 2).mean() for d in (2, 3, 4))
+            loss = loss + self.fc.tv_weight * tv
+        return loss, stats
+
+    @torch.no_grad()
+    def render_depth(self, origins, dirs, chunk=1 << 14):
+        out = []
+        for i in range(0, origins.shape[0], chunk):
+            o, d = origins[i:i + chunk], dirs[i:i + chunk]
+            near, far = ray_box(o, d, self.grid.box.bbox_min, self.grid.box.bbox_max)
+            far = torch.maximum(far, near)
+            r = render_pruned(self.grid, self.occupancy, o, d, near, far, self.step_len, self.tau_step)
+            out.append(r.depth + (1.0 - r.opacity) * far)
+        return torch.cat(out) if out else origins.new_zeros(0)
+
+    def density_volume(self):
+        """Opacity of each voxel (nx, ny, nz) in [0, 1], and the box."""
+        sigma = self.grid.sigma_xyz()
+        op = 1.0 - torch.exp(-sigma * self.grid.box.voxel)
+        return op.cpu().numpy(), self.grid.box.bbox_min.cpu().numpy(), self.grid.box.bbox_max.cpu().numpy()
+
+    def params_finite(self) -> bool:
+        return bool(torch.isfinite(self.grid.raw).all())
+
+    def state_dict(self):
+        return {"level": self.level, "raw": self.grid.raw.detach().clone(),
+                "bbox_min": self.grid.box.bbox_min.cpu(), "voxel": self.grid.box.voxel,
+                "shape": list(self.grid.box.shape),
+                "occupancy": self.occupancy.clone(), "tau_step": self.tau_step.clone(), "optimizer": self.optimizer.state_dict()}
+
+    def load_state_dict(self, st):
+        self.level = int(st["level"])
+        box = GridBox.exact(st["bbox_min"], st["voxel"], st["shape"]).to(self.device)
+        self.grid = DensityGrid(box, self.fc.density_scale, st["raw"].to(self.device))
+        self.occupancy = st["occupancy"].to(self.device)
+        self.tau_step = st["tau_step"].to(self.device)
+        self.make_optimizer()
+        self.optimizer.load_state_dict(st["optimizer"])
+
+
+class PlatoNeRFModel:
+    """Two NeRF MLPs (coarse, fine), 64 stratified + 128 importance samples, as published."""
+
+    def __init__(self, data: RayData, cfg: FitConfig, meas_meta: dict, generator: torch.Generator):
+        self.data, self.cfg, self.pc = data, cfg, cfg.platonerf
+        self.device = data.pixel_dirs.device
+        lo, hi = scene_bbox(data, 0.05)
+        self.bbox = (torch.as_tensor(lo, device=self.device), torch.as_tensor(hi, device=self.device))
+        centre = 0.5 * (lo + hi)
+        kw = dict(depth=self.pc.depth, width=self.pc.width, skip=self.pc.skip, pe_frequencies=self.pc.pe_frequencies,
+                  centre=centre)
+        self.coarse = NeRFField(**kw).to(self.device)
+        self.fine = NeRFField(**kw).to(self.device)
+        self.gen = generator
+        self.make_optimizer()
+
+    def make_optimizer(self):
+        self.optimizer = torch.optim.Adam(list(self.coarse.parameters()) + list(self.fine.parameters()),
+                                          lr=self.pc.lr, betas=(0.9, 0.999))
+
+    def before_step(self, step: int, total: int) -> bool:
+        lr = self.pc.lr * 0.1 ** (step / self.pc.lr_decay_steps)
+        for g in self.optimizer.param_groups:
+            g["lr"] = lr
+        return False
+
+    def _bounds(self, o, d):
+        near = torch.full_like(o[:, 0], self.pc.near_m)
+        if self.pc.far_m is None:
+            _, far = ray_box(o, d, *self.bbox)
+            far = torch.maximum(far, near + 1e-3)
+        else:
+            far = torch.full_like(near, self.pc.far_m)
+        return near, far
+
+    def _render(self, o, d, near, far, train=True):
+        """(fine RenderOut, coarse RenderOut) with the paper's hierarchical sampling."""
+        t0, t1 = uniform_intervals(near, far, self.pc.coarse_samples, stratified=train, generator=self.gen)
+        coarse = render_field(self.coarse, o, d, t0, t1)
+        extra = importance_positions(t0, t1, coarse.weights, self.pc.fine_samples, deterministic=not train,
+                                     generator=self.gen)
+        f0, f1 = merged_intervals(t0, t1, extra, near, far)
+        return render_field(self.fine, o, d, f0, f1), coarse
+
+    def camera_depths(self, c, dirs):
+        near, far = self._bounds(c, dirs)
+        fine, coarse = self._render(c, dirs, near, far)
+        return [fine.depth, coarse.depth]
+
+    def segment_transmittances(self, o, u, near, far):
+        fine, coarse = self._render(o, u, near, torch.maximum(far, near))
+        return [fine.transmittance, coarse.transmittance]
+
+    def loss(self, idx, step, total, gen):
+        return pair_loss(self, self.data, idx, step, total, self.cfg, self.cfg.loss.secondary_offset_m)
+
+    @torch.no_grad()
+    def render_depth(self, origins, dirs, chunk=2048):
+        out = []
+        for i in range(0, origins.shape[0], chunk):
+            o, d = origins[i:i + chunk], dirs[i:i + chunk]
+            near, far = self._bounds(o, d)
+            fine, _ = self._render(o, d, near, far, train=False)
+            out.append(fine.depth + (1.0 - fine.opacity) * far)
+        return torch.cat(out) if out else origins.new_zeros(0)
+
+    @torch.no_grad()
+    def density_volume(self):
+        box = GridBox(self.bbox[0].cpu(), self.bbox[1].cpu(), self.pc.volume_resolution).to(self.device)
+        pts = box.centres().reshape(-1, 3)
+        sigma = torch.cat([self.fine(pts[i:i + 65536]) for i in range(0, pts.shape[0], 65536)])
+        op = 1.0 - torch.exp(-sigma * box.voxel)
+        return op.reshape(box.shape).cpu().numpy(), box.bbox_min.cpu().numpy(), box.bbox_max.cpu().numpy()
+
+    def params_finite(self) -> bool:
+        return all(bool(torch.isfinite(p).all()) for p in list(self.coarse.parameters()) + list(self.fine.parameters()))
+
+    def state_dict(self):
+        return {"coarse": {k: v.clone() for k, v in self.coarse.state_dict().items()},
+                "fine": {k: v.clone() for k, v in self.fine.state_dict().items()},
+                "optimizer": self.optimizer.state_dict()}
+
+    def load_state_dict(self, st):
+        self.coarse.load_state_dict(st["coarse"])
+        self.fine.load_state_dict(st["fine"])
+        self.make_optimizer()
+        self.optimizer.load_state_dict(st["optimizer"])
+
+
+def build_model(data: RayData, cfg: FitConfig, meas_meta: dict, generator: torch.Generator):
+    if cfg.mode == "fast":
+        return FastModel(data, cfg, meas_meta)
+    return PlatoNeRFModel(data, cfg, meas_meta, generator)
+
