@@ -153,7 +153,7 @@ def curved_wall(albedo=WALL_ALBEDO, radius=2.5, centre_y=1.5, segments=48, rows=
     for r in range(rows):
         for s in range(segments):
             a, b, c, d = r * n + s, r * n + s + 1, (r + 1) * n + s + 1, (r + 1) * n + s
-            f += [[a, c, b], [a, d, c]]   # normals face the room (towards -Y)
+            f += [[a, b, c], [a, c, d]]   # normals face the room (towards -Y)
     return MeshPart("wall_back_curved", v, np.array(f), float(albedo))
 
 
