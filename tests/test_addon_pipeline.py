@@ -72,3 +72,30 @@ def test_panel_and_headless_runs_give_the_same_dataset(room, tmp_path):
     co = np.array([tuple(v.co) for v in obj.data.vertices])
     np.testing.assert_allclose(co.min(0), [-4, -5, 0], atol=1e-4)  # the room's floor/wall extent
     np.testing.assert_allclose(co.max(0), [4, 3, 4], atol=1e-4)
+
+
+@pytest.mark.slow
+def test_simulate_reconstruct_import_from_the_panel(room, tmp_path):
+    """The whole chain from the sidebar: generate spots, simulate, reconstruct (this venv's Python
+    as the external interpreter), import with error colours."""
+    pytest.importorskip("torch_recon.commands.fit")
+    s = room.platolidar
+    s.width = s.height = 32
+    s.bin_ps, s.bins, s.subpixel_grid = 64.0, 1000, 1
+    s.test_views_dolly = s.test_views_orbit = 0
+    s.random_candidates, s.random_keep = 16, 8
+    assert call(bpy.ops.platolidar.generate_spots)[1] is None
+    set_prefs(blender_path=str(fake_executable(tmp_path / "blender", BLENDER_SHIM)), python_path=sys.executable)
+    s.output_dir, s.recon_out_dir = str(tmp_path / "ds"), str(tmp_path / "recon")
+    res, err = call(bpy.ops.platolidar.simulate)
+    assert err is None, err
+    res, err = call(bpy.ops.platolidar.reconstruct)
+    assert err is None, err
+    assert s.import_path.endswith((".ply", ".obj", ".glb"))
+    s.import_color_error = True
+    res, err = call(bpy.ops.platolidar.import_reconstruction)
+    assert err is None, err
+    objs = list(bpy.data.collections["Reconstruction"].objects)
+    assert objs and all(len(o.data.vertices) > 0 for o in objs)
+    co = np.concatenate([np.array([tuple(o.matrix_world @ v.co) for v in o.data.vertices]) for o in objs])
+    assert np.all(co.min(0) > [-4.5, -5.5, -0.5]) and np.all(co.max(0) < [4.5, 3.5, 4.5])  # inside the room
