@@ -287,3 +287,17 @@ def test_reconstruction_output_mesh_choice(tmp_path):
     (tmp_path / "fit.json").write_text(json.dumps({"mesh_files": {"glb": str(tmp_path / "mesh.glb"),
                                                                   "ply": "mesh.ply", "obj": "mesh.obj"}}))
     assert reported_mesh(str(tmp_path)) == str(tmp_path / "mesh.ply")
+
+
+def test_cancel_button_operator(blank):
+    job = jobs.Job("simulation", [sys.executable, "-c", "import time; time.sleep(60)"]).start()
+    jobs.set_active(job, "simulation")
+    try:
+        assert bpy.ops.platolidar.cancel_job.poll()
+        expect_error(bpy.ops.platolidar.cancel_job, "no reconstruction is running", kind="reconstruction")
+        res, err = call(bpy.ops.platolidar.cancel_job, kind="simulation")
+        assert err is None and res == {"FINISHED"}
+        assert job.cancelled and job.returncode is not None
+    finally:
+        job.cancel(grace=1.0)
+        jobs.set_active(None, "simulation")
