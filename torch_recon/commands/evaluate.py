@@ -11,7 +11,7 @@ def register(sub) -> None:
     p.add_argument("--dataset", required=True, help="dataset directory with ground truth")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--fscore-threshold", type=float, default=0.05, help="F-score distance threshold (m)")
-    p.add_argument("--samples", type=int, default=200_000, help="surface samples for Chamfer/F-score")
+    p.add_argument("--samples", type=int, default=100_000, help="surface samples for Chamfer/F-score")
     p.add_argument("--miss-depth", choices=("zero", "max"), default="zero",
                    help="depth a reconstruction ray that hits nothing counts as (default zero)")
     p.add_argument("--error-images", type=int, default=1, help="write every n-th view's error PNG (0: none)")
