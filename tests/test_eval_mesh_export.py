@@ -1,0 +1,78 @@
+"""Mesh export: marching cubes in the world frame, islands, UVs, formats Blender imports in place, sidecar."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from torch_recon.mesh_export import MeshExportError, export_mesh, load_mesh_world
+
+LO, HI = np.array([1.0, 3.0, -1.0]), np.array([2.0, 5.0, 0.0])
+
+
+def _box_volume(n=48, island=True):
+    axes = [np.linspace(LO[i], HI[i], n) for i in range(3)]
+    x, y, z = np.meshgrid(*axes, indexing="ij")
+    occ = ((x > 1.2) & (x < 1.6) & (y > 3.5) & (y < 4.5) & (z > -0.8) & (z < -0.3)).astype(np.float32)
+    if island:
+        occ[2, 2, 2] = 1.0
+    return occ
+
+
+def test_round_trip_keeps_world_bbox_in_every_format(tmp_path):
+    r = export_mesh(_box_volume(), LO, HI, 0.5, tmp_path / "rec.glb", {"method": "test", "seconds": 1.5},
+                    extra_formats=(".ply", "obj"))
+    assert r.islands_removed == 1
+    spacing = (HI - LO) / 47
+    expect = np.array([[1.2, 3.5, -0.8], [1.6, 4.5, -0.3]])
+    np.testing.assert_allclose(r.mesh.bounds, expect, atol=spacing.max())
+    for suffix in (".glb", ".ply", ".obj"):
+        m = load_mesh_world(tmp_path / f"rec{suffix}")
+        np.testing.assert_allclose(m.bounds, r.mesh.bounds, atol=1e-5)
+    assert r.mesh.visual.uv.shape == (len(r.mesh.vertices), 2)
+    side = json.loads((tmp_path / "rec.mesh.json").read_text())
+    assert side["metadata"] == {"method": "test", "seconds": 1.5}
+    assert side["mesh"]["files"] == ["rec.glb", "rec.ply", "rec.obj"] and side["mesh"]["uv"] == "xatlas"
+    assert side["volume"]["level"] == 0.5 and side["volume"]["bbox_min"] == LO.tolist()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.glb", "rec.mesh.json", "rec.obj", "rec.ply"]
+
+
+def test_torch_volume_and_boundary_closing(tmp_path):
+    torch = pytest.importorskip("torch")
+    occ = np.zeros((20, 20, 20), np.float32)
+    occ[:, :10, :] = 1.0           # a slab touching four faces of the box: closed, clamped to the box
+    r = export_mesh(torch.from_numpy(occ), LO, HI, 0.5, tmp_path / "slab.ply", None, uv=False)
+    assert r.mesh.is_watertight
+    assert np.all(r.mesh.bounds[0] >= LO - 1e-9) and np.all(r.mesh.bounds[1] <= HI + 1e-9)
+
+
+def test_bad_volumes_are_refused(tmp_path):
+    v = _box_volume()
+    with pytest.raises(MeshExportError, match="outside the volume's range"):
+        export_mesh(v, LO, HI, 2.0, tmp_path / "a.ply")
+    bad = v.copy()
+    bad[0, 0, 0] = np.nan
+    with pytest.raises(MeshExportError, match="NaN"):
+        export_mesh(bad, LO, HI, 0.5, tmp_path / "a.ply")
+    with pytest.raises(MeshExportError, match="bbox_max"):
+        export_mesh(v, HI, LO, 0.5, tmp_path / "a.ply")
+    with pytest.raises(MeshExportError, match="unsupported"):
+        export_mesh(v, LO, HI, 0.5, tmp_path / "a.stl")
+    assert not any(tmp_path.iterdir())   # nothing half-written
+
+
+def test_blender_imports_every_format_in_place(tmp_path):
+    bpy = pytest.importorskip("bpy")
+    r = export_mesh(_box_volume(island=False), LO, HI, 0.5, tmp_path / "rec.glb", {}, extra_formats=(".ply", ".obj"))
+    importers = {".glb": lambda p: bpy.ops.import_scene.gltf(filepath=p),
+                 ".ply": lambda p: bpy.ops.wm.ply_import(filepath=p),
+                 ".obj": lambda p: bpy.ops.wm.obj_import(filepath=p)}
+    for suffix, imp in importers.items():
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        imp(str(tmp_path / f"rec{suffix}"))
+        obs = [o for o in bpy.context.scene.objects if o.type == "MESH"]
+        v = np.concatenate([np.array([o.matrix_world @ p.co for p in o.data.vertices]) for o in obs])
+        np.testing.assert_allclose([v.min(0), v.max(0)], r.mesh.bounds, atol=1e-4, err_msg=suffix)
+        assert all(len(o.data.uv_layers) == 1 for o in obs)
