@@ -32,17 +32,20 @@ LAYER_PREFIX = "ViewLayer"
 
 
 def read_multilayer_exr(path: str) -> dict:
-    """{pass name: (H, W, C) float32} from a Blender multilayer EXR (each pass is an EXR part)."""
+    """{pass name: (H, W, C) float32} from a Blender multilayer EXR.
+
+    Channels are named 'ViewLayer.<Pass>.<C>'; Blender 5.0 writes each pass as its own EXR
+    part, earlier versions one part with all channels: both are grouped by pass here.
+    """
+    order = {"R": 0, "G": 1, "B": 2, "A": 3, "X": 0, "Y": 1, "Z": 2}
+    groups: dict = {}
     f = OpenEXR.File(path, separate_channels=True)
-    out = {}
     for part in f.parts:
-        chans = part.channels
-        names = sorted(chans)  # e.g. 'ViewLayer.Position.X'
-        order = {"R": 0, "G": 1, "B": 2, "A": 3, "X": 0, "Y": 1, "Z": 2}
-        names.sort(key=lambda n: order.get(n.rsplit(".", 1)[-1], 9))
-        pass_name = names[0].rsplit(".", 1)[0].split(".", 1)[-1] if "." in names[0] else part.name()
-        out[pass_name] = np.stack([np.asarray(chans[n].pixels, np.float32) for n in names], -1)
-    return out
+        for name, ch in part.channels.items():
+            prefix, comp = name.rsplit(".", 1) if "." in name else (part.name(), name)
+            pass_name = prefix.split(".", 1)[-1]          # drop the view layer name
+            groups.setdefault(pass_name, []).append((order.get(comp, 9), np.asarray(ch.pixels, np.float32)))
+    return {k: np.stack([a for _, a in sorted(v, key=lambda t: t[0])], -1) for k, v in groups.items()}
 
 
 def to_subsamples(img: np.ndarray, s: int) -> np.ndarray:
@@ -101,13 +104,17 @@ class CyclesRenderer:
             v.use = v == vl
         self.view_layer = vl
         self._set_passes()
-        ims = r.image_settings
-        ims.media_type = "MULTI_LAYER_IMAGE"   # must precede file_format in 5.0
-        ims.file_format = "OPEN_EXR_MULTILAYER"
-        ims.color_depth = "32"
-        ims.exr_codec = "NONE"
+        self._set_exr_output()
         r.use_compositing = False
         r.use_sequencer = False
+
+    def _set_exr_output(self):
+        ims = self.scene.render.image_settings
+        if hasattr(ims, "media_type"):         # Blender 5.0: must precede file_format
+            ims.media_type = "MULTI_LAYER_IMAGE"
+        ims.file_format = "OPEN_EXR_MULTILAYER"
+        ims.color_depth = "32"
+        ims.exr_codec = "NONE"               # uncompressed: written and read once, at once
 
     def _set_passes(self, position=False, normal=False, albedo=False):
         vl = self.view_layer
@@ -166,7 +173,7 @@ class CyclesRenderer:
         self.emitter.hide_render = True
         return to_subsamples(res["Combined"][..., :3].mean(axis=-1), self.s)
 
-    def render_rgb(self, location, power_w: float, path: str, samples: int = 32):
+    def render_rgb(self, location, power_w: float, path: str, samples: int = 64):
         """RGB-shadow baseline image: a point light at l, at most two bounces, sRGB PNG at sensor resolution."""
         sc, r, c = self.scene, self.scene.render, self.scene.cycles
         data = bpy.data.lights.new("platolidar_rgb_point", "POINT")
@@ -176,14 +183,16 @@ class CyclesRenderer:
         sc.collection.objects.link(obj)
         obj.location = Vector(np.asarray(location, np.float64).tolist())
         saved = (r.resolution_x, r.resolution_y, c.samples, c.max_bounces, c.filter_width, r.film_transparent,
-                 r.image_settings.media_type, r.image_settings.file_format, c.direct_light_sampling_type)
+                 c.direct_light_sampling_type, c.sample_clamp_indirect)
         try:
             r.resolution_x, r.resolution_y = self.width, self.height
             c.samples, c.max_bounces, c.filter_width = samples, 2, 1.5
+            c.sample_clamp_indirect = 1.0      # the point light sits 1 cm off a wall: clamp its fireflies
             c.direct_light_sampling_type = "MULTIPLE_IMPORTANCE_SAMPLING"
             r.film_transparent = False
             sc.view_settings.view_transform = "Standard"   # plain sRGB gamma
-            r.image_settings.media_type = "IMAGE"
+            if hasattr(r.image_settings, "media_type"):
+                r.image_settings.media_type = "IMAGE"
             r.image_settings.file_format = "PNG"
             r.image_settings.color_mode = "RGB"
             r.image_settings.color_depth = "8"
@@ -193,11 +202,8 @@ class CyclesRenderer:
             bpy.data.objects.remove(obj)
             bpy.data.lights.remove(data)
             (r.resolution_x, r.resolution_y, c.samples, c.max_bounces, c.filter_width, r.film_transparent,
-             media, fmt, c.direct_light_sampling_type) = saved
-            r.image_settings.media_type = media
-            r.image_settings.file_format = fmt
-            r.image_settings.color_depth = "32"
-            r.image_settings.exr_codec = "NONE"
+             c.direct_light_sampling_type, c.sample_clamp_indirect) = saved
+            self._set_exr_output()
 
     def render_ambient(self, samples: int = 16) -> np.ndarray | None:
         """Radiance (H, W) of the scene under its own lights only (None when it has none)."""
