@@ -41,7 +41,13 @@ class FitResult:
     source_hash: str
     out_dir: Path | None = None
     mesh_files: dict = field(default_factory=dict)
+    mesh: object = None               # trimesh.Trimesh (Blender world frame) when exported
     metadata: dict = field(default_factory=dict)
+
+    def density(self, pts: torch.Tensor) -> torch.Tensor:
+        """sigma (1 / m) at world points (N, 3): the fitted field, for evaluate.render_density_depth."""
+        with torch.no_grad():
+            return self.model.density(pts.to(self.model.device)).to(pts.device)
 
     def render_depth(self, camera_to_world, width: int, height: int, fov_rad: float, fov_axis: str = "x"):
         """Range image (H, W) of the fitted field from any camera (volume rendering)."""
@@ -127,7 +133,8 @@ def fit(source, mode: str = "fast", out=None, config: FitConfig | None = None, o
         tmp.replace(out_dir / VOLUME_NAME)
         if export:
             result.metadata["run_seconds"] = round(time.perf_counter() - t_start, 3)
-            result.mesh_files = export_volume(vol, lo, hi, cfg.mesh_level, out_dir / "mesh", result.metadata)
+            result.mesh_files, result.mesh = export_volume(vol, lo, hi, cfg.mesh_level, out_dir / "mesh",
+                                                           result.metadata)
     result.total_seconds = time.perf_counter() - t_start
     result.metadata["run_seconds"] = round(result.total_seconds, 3)
     if out_dir is not None:
@@ -137,13 +144,18 @@ def fit(source, mode: str = "fast", out=None, config: FitConfig | None = None, o
     return result
 
 
-def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: dict) -> dict:
-    """Marching cubes + cleanup + UVs + .ply/.obj/.glb through the shared mesh exporter."""
+def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: dict):
+    """Marching cubes + cleanup + UVs -> .glb (+ .ply, .obj) through the shared mesh exporter.
+
+    Our values sit at voxel centres; the exporter's grid points span its bbox corner to corner, so
+    it gets the box of the centres.
+    """
     from ..mesh_export import export_mesh
 
-    files = export_mesh(volume, bbox_min, bbox_max, level, out_path, metadata)
-    if isinstance(files, dict):
-        return files
-    if isinstance(files, (list, tuple)):
-        return {Path(f).suffix.lstrip("."): Path(f) for f in files}
-    return {"mesh": Path(files)}
+    lo, hi = np.asarray(bbox_min, np.float64), np.asarray(bbox_max, np.float64)
+    half = 0.5 * (hi - lo) / np.asarray(np.shape(volume), np.float64)
+    res = export_mesh(volume, lo + half, hi - half, level, Path(out_path).with_suffix(".glb"), metadata,
+                      extra_formats=(".ply", ".obj"))
+    files = {p.suffix.lstrip("."): p for p in res.paths}
+    files["sidecar"] = res.sidecar
+    return files, res.mesh

@@ -95,8 +95,9 @@ class FitConfig:
             raise ValueError(f"mode: expected one of {list(MODES)}, got {self.mode!r}")
         if not 0.0 <= self.loss.warmup_fraction <= 1.0:
             raise ValueError(f"loss.warmup_fraction: expected a fraction in [0, 1], got {self.loss.warmup_fraction}")
-        if self.fast.coarse_resolution < 4 or self.fast.resolution < self.fast.coarse_resolution:
-            raise ValueError("fast.resolution must be >= fast.coarse_resolution >= 4")
+        if self.fast.coarse_resolution < 4 or self.fast.resolution < 4:
+            raise ValueError("fast.resolution and fast.coarse_resolution must be >= 4 "
+                             "(a coarse level at or above the resolution is skipped)")
         if self.device not in ("auto", "cpu", "cuda"):
             raise ValueError(f"device: expected 'auto', 'cpu' or 'cuda', got {self.device!r}")
 

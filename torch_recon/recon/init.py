@@ -22,14 +22,19 @@ from .sampler import marching_intervals, ray_box
 
 
 def scene_bbox(data: RayData, margin_m: float, quantile: float = 0.001):
-    """Robust extent of the observed surface points and the spots, grown by `margin_m`."""
+    """Robust extent of the observed surface points, the spots and the sensor, grown by `margin_m`.
+
+    The sensor is inside: the space between it and the surfaces was measured (free), and the
+    unseen parts of a room next to the sensor are filled from there (see extrude_unseen).
+    """
     pts = data.scene_points()
     if len(pts) < 2:
         raise ValueError("measurements: no visible depth and no spots: cannot bound the scene")
     lo = np.quantile(pts, quantile, axis=0) - margin_m
     hi = np.quantile(pts, 1.0 - quantile, axis=0) + margin_m
-    lo = np.minimum(lo, pts[-len(data.spot_points):].min(0) - margin_m)
-    hi = np.maximum(hi, pts[-len(data.spot_points):].max(0) + margin_m)
+    must = np.concatenate([pts[-len(data.spot_points):], data.sensor_origin.cpu().numpy()[None]], 0)
+    lo = np.minimum(lo, must.min(0) - margin_m)
+    hi = np.maximum(hi, must.max(0) + margin_m)
     return lo.astype(np.float32), hi.astype(np.float32)
 
 

@@ -127,6 +127,9 @@ class FastModel:
             out.append(r.depth + (1.0 - r.opacity) * far)
         return torch.cat(out) if out else origins.new_zeros(0)
 
+    def density(self, pts):
+        return self.grid(pts)
+
     def density_volume(self):
         """Opacity of each voxel (nx, ny, nz) in [0, 1], and the box."""
         sigma = self.grid.sigma_xyz()
@@ -217,6 +220,10 @@ class PlatoNeRFModel:
             fine, _ = self._render(o, d, near, far, train=False)
             out.append(fine.depth + (1.0 - fine.opacity) * far)
         return torch.cat(out) if out else origins.new_zeros(0)
+
+    def density(self, pts):
+        return torch.cat([self.fine(pts[i:i + 65536]) for i in range(0, pts.shape[0], 65536)]) \
+            if pts.shape[0] else pts.new_zeros(0)
 
     @torch.no_grad()
     def density_volume(self):
