@@ -136,15 +136,21 @@ def speed(res: int, repeats: int = 3) -> dict:
     o = np.zeros(3)
     with timer() as t_first:
         cube = bin_two_bounce(x, rad, valid, l, o, o, sensor)
-    reuse = []
+    reuse, reuse_cpu, single = [], [], []
     for _ in range(repeats):
         with timer() as t:
             bin_two_bounce(x, rad, valid, l, o, o, sensor, out=cube)
         reuse.append(t.seconds)
+        reuse_cpu.append(t.cpu_seconds)
+        with timer() as t:
+            bin_two_bounce(x, rad, valid, l, o, o, sensor, out=cube, threads=1)
+        single.append(t.seconds)
     path = expected_return_path(x, valid, l, o, o)
     out = {"resolution": res, "subsamples": int(x.shape[0]), "bins": sensor.bins,
-           "bin_first_call_s": t_first.seconds, "bin_reused_buffer_s_median": statistics.median(reuse),
-           "bin_reused_buffer_s_min": min(reuse), "bin_reused_buffer_s_all": reuse, "cube_mb": cube.nbytes / 2 ** 20,
+           "bin_first_call_s": t_first.seconds, "bin_first_call_cpu_s": t_first.cpu_seconds, "bin_reused_buffer_s_median": statistics.median(reuse),
+           "bin_reused_buffer_s_min": min(reuse), "bin_reused_buffer_s_all": reuse,
+           "bin_reused_buffer_cpu_s_median": statistics.median(reuse_cpu),
+           "bin_reused_buffer_one_thread_s_median": statistics.median(single), "cube_mb": cube.nbytes / 2 ** 20,
            "lit_fraction": float(np.mean(rad > 0))}
     settings = {
         "expected_values": (NoiseSpec(), TimeGate()),
@@ -158,6 +164,7 @@ def speed(res: int, repeats: int = 3) -> dict:
         with timer() as t:
             tr, layout = apply_sensor(cube, s, noise, np.random.default_rng(0), expected_path=path)
         out[f"sensor_{name}_s"] = t.seconds
+        out[f"sensor_{name}_cpu_s"] = t.cpu_seconds
         out[f"sensor_{name}_window_bins"] = layout.window_bins
         del tr
     out["peak_rss_mb"] = peak_rss_mb()
@@ -210,11 +217,15 @@ def main(argv=None):
               f"{r['measured_gain_eq5']:>9.2f}")
     sp = speed(args.resolution)
     print(f"\nbinning {sp['resolution']}x{sp['resolution']}x{sp['bins']}, S={sp['subsamples']}: first call "
-          f"{sp['bin_first_call_s']:.3f} s (fresh {sp['cube_mb']:.0f} MB cube), reused buffer {sp['bin_reused_buffer_s_median']:.3f} s (median of 3, min "
+          f"{sp['bin_first_call_s']:.3f} s wall / {sp['bin_first_call_cpu_s']:.3f} s CPU (fresh {sp['cube_mb']:.0f} MB cube), "
+          f"reused buffer {sp['bin_reused_buffer_s_median']:.3f} s (median of 3, min "
           f"{sp['bin_reused_buffer_s_min']:.3f} s)")
+    print(f"  (CPU time {sp['bin_reused_buffer_cpu_s_median']:.3f} s; one thread "
+          f"{sp['bin_reused_buffer_one_thread_s_median']:.3f} s wall)")
     print(f"load average during the run: {os.getloadavg()[0]:.2f} (other processes share the CPU when > 1)")
     for name in ("expected_values", "poisson_gate32", "poisson_ambient_dense"):
-        print(f"apply_sensor {name:<22} {sp[f'sensor_{name}_s']:.3f} s  (window {sp[f'sensor_{name}_window_bins']} bins)")
+        print(f"apply_sensor {name:<22} {sp[f'sensor_{name}_s']:.3f} s wall, {sp[f'sensor_{name}_cpu_s']:.3f} s CPU "
+              f"(window {sp[f'sensor_{name}_window_bins']} bins)")
     print(f"peak RSS {sp['peak_rss_mb']:.0f} MiB")
     out = Path(args.out)
     info["load_average_1min"] = os.getloadavg()[0]

@@ -3,7 +3,7 @@
     from benchmarks.common import machine_info, peak_rss_mb, timer, write_json
     with timer() as t:
         work()
-    print(t.seconds, peak_rss_mb())
+    print(t.seconds, t.cpu_seconds, peak_rss_mb())
     write_json("benchmarks/results/x.json", {"machine": machine_info(), "seconds": t.seconds})
 
 A script run by path (``python benchmarks/bench_x.py``) first puts the repository root on sys.path:
@@ -58,18 +58,23 @@ def peak_rss_mb() -> float:
 
 
 class _Timer:
-    seconds: float = float("nan")
+    seconds: float = float("nan")       # wall clock
+    cpu_seconds: float = float("nan")   # CPU time of this process, all threads (not children)
 
 
 @contextmanager
 def timer():
-    """Wall-clock timer: ``with timer() as t: ...`` then ``t.seconds``."""
+    """``with timer() as t: ...`` then ``t.seconds`` (wall) and ``t.cpu_seconds`` (process CPU).
+
+    On a shared machine the CPU time is the steadier figure: wall time grows with other load.
+    """
     t = _Timer()
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     try:
         yield t
     finally:
         t.seconds = time.perf_counter() - start
+        t.cpu_seconds = time.process_time() - cpu
 
 
 def write_json(path, obj) -> Path:
