@@ -73,7 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
     spots = ap.add_mutually_exclusive_group()
     spots.add_argument("--spots", type=int, help="K spots: K of the scene's spots (diversity heuristic), or K "
                        "of --candidates random ones when the scene has none")
-    spots.add_argument("--spot-list", help="explicit laser targets 'x,y,z;x,y,z;...' (world, m)")
+    spots.add_argument("--spot-list", help="explicit laser targets 'x,y,z;x,y,z;...' (world, m); write "
+                       "--spot-list=-2,3,0 when the first number is negative")
     ap.add_argument("--candidates", type=int, help="random candidate spots to choose from (default 24)")
     ap.add_argument("--photons", type=float, help="photons of the brightest two-bounce pixel (0: keep radiance units)")
     ap.add_argument("--poisson", action=argparse.BooleanOptionalAction, default=None, help="Poisson photon counts")
