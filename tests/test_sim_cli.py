@@ -166,3 +166,19 @@ def test_failed_run_keeps_the_previous_dataset(tmp_path):
     assert proc.returncode == 2 and proc.stderr.strip().splitlines()[-1].startswith("simulate: error:")
     assert _digest(out) == before
     assert json.loads((out / "dataset.json").read_text())["sensor"]["bins"] == 391
+
+
+def test_config_file_then_options(tmp_path):
+    cfg = tmp_path / "sim.json"
+    cfg.write_text(json.dumps({"width": 12, "height": 10, "bins": 300, "bin_ps": 100.0, "train_depth": False,
+                               "gt_mesh": False, "test_views_dolly": 0, "test_views_orbit": 0,
+                               "spots": [{"target": [-2.0, 3.0, 0.0]}, {"target": [2.0, 2.5, -1.0]}]}))
+    # Blender-binary style: options after '--'
+    simulate(tmp_path / "ds", "--", "--example", "cave-chair", "--config", cfg, "--bins", 450, "--out",
+             tmp_path / "ds")
+    ds = load_dataset(tmp_path / "ds")
+    s = ds.sensor
+    assert (s.width, s.height, s.bins, s.bin_width_ps) == (12, 10, 450, 100.0)   # the option wins over the file
+    assert len(ds.manifest.spots) == 2 and ds.manifest.ground_truth.train_depth_file is None
+    cfg.write_text(json.dumps({"bins": 300, "colour": "red"}))
+    _fails(tmp_path, "--example", "cave-chair", "--config", cfg, expect="'colour'")
