@@ -10,7 +10,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix, Vector
 
-from pipeline.config import CONFIG_TEXT_NAME, ConfigError, SimulationConfig, SpotConfig
+from pipeline.config import CONFIG_TEXT_NAME, SimulationConfig, SpotConfig
 from pipeline.scenes import AreaLight, BlenderPrimitive, ExampleScene, MeshPart
 
 
@@ -225,7 +225,3 @@ def scene_lights(scene):
 
 def blender_version() -> str:
     return bpy.app.version_string
-
-
-def config_error_source() -> str:
-    return bpy.data.filepath or "<example scene>"

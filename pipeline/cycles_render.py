@@ -209,7 +209,7 @@ class CyclesRenderer:
         """Radiance (H, W) of the scene under its own lights only (None when it has none)."""
         if not self.ambient_lights:
             return None
-        sc, r, c = self.scene, self.scene.render, self.scene.cycles
+        r, c = self.scene.render, self.scene.cycles
         for light in self.ambient_lights:
             light.hide_render = False
         saved = (r.resolution_x, r.resolution_y, c.samples, c.max_bounces, c.filter_width,
