@@ -35,7 +35,7 @@ def run(args) -> int:
     from ..preprocess import preprocess_dataset
     from .preprocess import resolve_device, settings_from_args, summarize
 
-    device = resolve_device(args.device)
+    device = resolve_device(args.device, args.threads)
     ds = load_dataset(args.dataset)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
