@@ -182,3 +182,20 @@ def test_config_file_then_options(tmp_path):
     assert len(ds.manifest.spots) == 2 and ds.manifest.ground_truth.train_depth_file is None
     cfg.write_text(json.dumps({"bins": 300, "colour": "red"}))
     _fails(tmp_path, "--example", "cave-chair", "--config", cfg, expect="'colour'")
+
+
+def test_time_gate_keeps_the_signal_and_gains_t_over_w(tmp_path):
+    base = ["--example", "cave-chair", *SMALL, "--spots", 2, "--photons", 1000, "--ambient", 0.5]
+    simulate(tmp_path / "full", *base)
+    simulate(tmp_path / "gate", *base, "--time-gate", 16)
+    full, gate = load_dataset(tmp_path / "full"), load_dataset(tmp_path / "gate")
+    t, w, b = 391, 16, 0.5
+    for (_, tf), (_, tg) in zip(full.iter_transients(), gate.iter_transients()):
+        signal_full = tf.dense().sum(-1) - t * b          # expected values: no Poisson here
+        signal_gate = tg.window.sum(-1) - w * b
+        lit = signal_full > 0.05 * np.median(signal_full[signal_full > 1])
+        lit[np.unravel_index(np.argmax(signal_full), lit.shape)] = False     # first-bounce pixel
+        kept = signal_gate[lit] / signal_full[lit]
+        assert np.mean(kept > 0.95) >= 0.9               # the gate sits on the two-bounce return
+        gain = (signal_gate[lit] / (w * b)) / (signal_full[lit] / (t * b))
+        assert np.median(gain) == pytest.approx(t / w, rel=0.05)
