@@ -30,15 +30,16 @@ def test_preprocess_baseline_evaluate(ds_path, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "first bounce" in out and "preprocessed in" in out
     assert main(["baseline", str(ds_path), "--out", str(tmp_path / "bl"), "--measurements", str(npz),
-                 "--voxels", "32", "--evaluate"]) == 0
+                 "--voxels", "32", "--threads", "1"]) == 0
     side = json.loads((tmp_path / "bl" / "mesh.mesh.json").read_text())
     assert side["metadata"]["method"] == "bflidar" and side["metadata"]["dataset_hash"] == m.settings["dataset_hash"]
-    rep = json.loads((tmp_path / "bl" / "eval" / "report.json").read_text())
-    assert rep["n_test_views"] == 3 and np.isfinite(rep["depth_l1_m"])
-    assert main(["evaluate", str(tmp_path / "bl" / "mesh.ply"), "--dataset", str(ds_path), "--out",
-                 str(tmp_path / "ev"), "--samples", "5000"]) == 0
-    rep2 = json.loads((tmp_path / "ev" / "report.json").read_text())
-    assert rep2["depth_l1_m"] == pytest.approx(rep["depth_l1_m"], abs=1e-4)   # .ply and .glb: same mesh
+    reps = []
+    for name in ("mesh.ply", "mesh.glb"):
+        assert main(["evaluate", str(tmp_path / "bl" / name), "--dataset", str(ds_path), "--out",
+                     str(tmp_path / name), "--samples", "5000"]) == 0
+        reps.append(json.loads((tmp_path / name / "report.json").read_text()))
+    assert reps[0]["n_test_views"] == 3 and np.isfinite(reps[0]["depth_l1_m"])
+    assert reps[1]["depth_l1_m"] == pytest.approx(reps[0]["depth_l1_m"], abs=1e-4)   # .ply and .glb: same mesh
     assert "depth L1" in capsys.readouterr().out
 
 
