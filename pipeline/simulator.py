@@ -329,7 +329,8 @@ def simulate_spot(p, renderer, sensor, noise, geometry, g_bound, ambient_scale, 
         if vpl is not None:
             vpl.add(expected, p, renderer, sensor, geometry)
             t0 = _tick(timings, "third_bounce_s", t0)
-        path = transient_binning.expected_return_path(pos, valid, p.first_bounce, o, c)
+        path = (transient_binning.expected_return_path(pos, valid, p.first_bounce, o, c)
+                if sensor.time_gate.enabled else None)   # only the gate needs it
         rng = np.random.default_rng([cfg.seed, p.id])   # per spot: a spot's noise does not depend on the others
         tr, layout = sensor_model.apply_sensor(expected, sensor, noise, rng, path, first_bounce_pixel=p.pixel,
                                                ambient_scale=ambient_scale)
