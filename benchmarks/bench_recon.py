@@ -100,7 +100,7 @@ def run_single(args) -> dict:
             "settings_override": args.set or [], "threads": torch.get_num_threads(),
             "wall_seconds": wall, "setup_seconds": r.setup_seconds, "train_seconds": r.train.train_seconds,
             "steps": r.train.steps_done, "stopped": r.train.stopped, "peak_rss_mb": peak_rss_mb(),
-            "data_seconds": data_s, **tv,
+            "data_seconds": data_s, "loadavg_after": list(__import__("os").getloadavg()), **tv,
             "chamfer_m": surf.get("chamfer_m"), "fscore": surf.get("fscore"),
             "n_test_views": len(cams), "test_view_res": args.view_res, "curve": curve}
 

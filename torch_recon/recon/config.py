@@ -39,6 +39,12 @@ class FastConfig:
     density_scale: float = 50.0       # sigma = density_scale * softplus(raw), in 1 / m
     raw_free: float = -10.0           # raw density of free space at initialisation (sigma ~ 0.002 / m)
     raw_occupied: float = 4.0         # raw density of occupied space (sigma ~ 200 / m: opaque in 1 voxel)
+    surface_slope: float = 16.0       # raw-density ramp per voxel across visible surfaces at init (0: binary)
+    hidden_thickness_m: float | None = 0.3  # hidden, uncarved space is filled only this far behind the
+                                      # visible surface (None: all of it, BF Lidar's shadow hull)
+    shell_voxels: float = 2.0         # ... and this close to the box faces (walls, floor, ceiling)
+    fill_min_shadow: int = 2          # ... and where at least this many shadowed secondary rays pass (0: off)
+    carve_core: float = 0.3           # a lit ray carves a voxel only through its central 0.6-voxel cube
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
     surface_margin_voxels: float = 1.0  # camera free space stops this far before the visible surface
     occupancy_threshold: float = 0.01  # cells whose neighbourhood has sigma * voxel below this are skipped
