@@ -94,9 +94,12 @@ def camera_ray_direction(cam, scene, u: float, v: float) -> Vector:
     return (cam.matrix_world.to_3x3() @ local).normalized()
 
 
-def random_candidates(scene, depsgraph, n: int, seed: int, max_tries_per_spot: int = 20):
-    """Up to n surface points the camera sees and the laser reaches, drawn uniformly in the image.
+def random_candidates(scene, depsgraph, n: int, seed: int, max_tries_per_spot: int = 20, margin: float = 0.05):
+    """Up to n surface points the camera sees and the laser reaches, at random pixel centres.
 
+    Pixel centres (not any image point): the pixel that holds the spot then sees the spot itself,
+    so its first-bounce return is recorded even next to a depth edge. Pixels within `margin` of
+    the image border are skipped, as the simulator's own random spots do.
     Returns (points, normals): lists of Vectors (world frame).
     """
     cam = lidar_camera(scene)
@@ -108,7 +111,10 @@ def random_candidates(scene, depsgraph, n: int, seed: int, max_tries_per_spot: i
     for _ in range(max(1, n) * max_tries_per_spot):
         if len(points) >= n:
             break
-        d = camera_ray_direction(cam, scene, rng.random(), rng.random())
+        w, h = max(1, scene.platolidar.width), max(1, scene.platolidar.height)
+        col = rng.randrange(int(margin * w), max(int(margin * w) + 1, w - int(margin * w)))
+        row = rng.randrange(int(margin * h), max(int(margin * h) + 1, h - int(margin * h)))
+        d = camera_ray_direction(cam, scene, (col + 0.5) / w, (row + 0.5) / h)
         hit = cast(scene, depsgraph, cam_origin, d)
         if hit is None:
             continue

@@ -64,12 +64,13 @@ class JobOperatorMixin:
         except UserError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        last = None
+        last, last_t = None, 0.0
         try:
             while not job.poll():
                 time.sleep(0.1)
-                if job.last_line != last:  # echo progress on the console of a background run
-                    last = job.last_line
+                # echo progress on the console of a background run, at most every 2 s (tqdm redraws often)
+                if job.last_line != last and time.monotonic() - last_t >= 2.0:
+                    last, last_t = job.last_line, time.monotonic()
                     print(f"platolidar {self.job_kind}: {last}", flush=True)
         except KeyboardInterrupt:
             job.cancel()
