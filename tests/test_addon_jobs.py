@@ -301,3 +301,19 @@ def test_cancel_button_operator(blank):
     finally:
         job.cancel(grace=1.0)
         jobs.set_active(None, "simulation")
+
+
+def test_failed_simulate_leaves_no_temporary_copy(room, tmp_path, monkeypatch):
+    import glob
+    import tempfile
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    set_prefs(blender_path=str(fake_executable(tmp_path / "blender", FAKE_BLENDER)))
+    room.cursor.location = (0.0, 0.5, 0.5)
+    call(bpy.ops.platolidar.add_spot_cursor)
+    (tmp_path / "file").write_text("x")
+    room.platolidar.output_dir = str(tmp_path / "file")  # a file where the dataset folder should go
+    expect_error(bpy.ops.platolidar.simulate, "is a file")
+    room.platolidar.output_dir = str(tmp_path / "ds")
+    monkeypatch.setenv("FAKE_FAIL", "1")
+    expect_error(bpy.ops.platolidar.simulate, "exit code 2")
+    assert glob.glob(str(tmp_path / "platolidar_sim_*")) == []

@@ -49,7 +49,11 @@ class JobOperatorMixin:
     def _prepare(self, context):
         if jobs.active(self.job_kind) is not None:
             raise UserError(f"A {self.job_kind} job is already running: cancel it first (Esc or Cancel)")
-        job = self.build_job(context)
+        try:
+            job = self.build_job(context)
+        except UserError:
+            self.cleanup(context, None)  # e.g. a temporary copy made before the failing check
+            raise
         try:
             job.start()
         except OSError as exc:
