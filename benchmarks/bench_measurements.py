@@ -135,6 +135,7 @@ def bflidar_eval(meas, mesh_gt, cams, test_res, fov, grid=True, base=None, gt=No
     return {"carve_s": round(t.seconds, 3), "voxels": base.voxels, "best_settings": {
         k: res.settings[k] for k in ("occupancy_threshold", "carve_shadow_threshold")},
         "grid_search": table, "depth_l1_m": dm["depth_l1_m"], "depth_psnr_db": dm["depth_psnr_db"],
+        "depth_l1_m_on_hits": dm["depth_l1_m_on_hits"], "hit_fraction": dm["hit_fraction"],
         "n_test_views": len(cams), "test_res": test_res, "n_excluded_pixels": dm["n_excluded_pixels"],
         "reconstruction_misses": dm["n_reconstruction_misses"], "chair_chamfer_m": sm["chamfer_m"],
         "chair_fscore_5cm": sm["fscore"]}, res
@@ -246,7 +247,8 @@ def print_table(out):
         print(f"{r['source']:17s} {r['resolution']:4d}  {r['preprocess_dense_s']:10.2f} s  {r['preprocess_windowed_s']:7.2f} s"
               f"  {v['median_mm']:10.3f}  {v['p95_mm']:8.3f}  {100 * v['coverage']:7.1f} %")
     for b in out["bflidar"]:
-        print(f"BF Lidar {b['source']} {b['resolution']}: carve {b['carve_s']:.2f} s, depth L1 {b['depth_l1_m']:.4f} m, "
+        print(f"BF Lidar {b['source']} {b['resolution']}: carve {b['carve_s']:.2f} s, depth L1 {b['depth_l1_m']:.4f} m "
+              f"(on hits {b['depth_l1_m_on_hits']:.4f} m, {100 * b['hit_fraction']:.1f} % hit), "
               f"PSNR {b['depth_psnr_db']:.2f} dB, chair Chamfer {b['chair_chamfer_m']:.4f} m, F {b['chair_fscore_5cm']:.3f}")
     for c in out["cycles"]:
         b = c["bflidar"]

@@ -11,6 +11,8 @@ Definitions (DESIGN.md section 4; all depths are ranges along the pixel ray, met
 - depth_psnr_db: 10 log10(1 / MSE) of (pred - gt) / max_gt over the same pooled
   pixels, max_gt the largest finite GT depth of the test set (peak 1); MSE is
   floored at 1e-10 (100 dB). depth_psnr_db_view_mean: the mean of per-view PSNRs.
+  For context only: depth_l1_m_on_hits (valid pixels the reconstruction did hit)
+  and hit_fraction.
 - chamfer_m: symmetric mean distance (not squared) from `n_surface_samples`
   points sampled (seeded) on each surface to the OTHER surface (point-to-triangle,
   so identical meshes give 0): 0.5 (mean d(pred -> gt) + mean d(gt -> pred));
@@ -137,7 +139,9 @@ def depth_metrics(pred, gt, miss_depth: str = "zero") -> dict:
         per_view_l1.append(float(np.abs(e).sum() / nv))
         per_view_psnr.append(_psnr(float(((e / max_gt) ** 2).sum() / nv)))
     ps = [p for p in per_view_psnr if p is not None]
-    return {"depth_l1_m": l1, "depth_psnr_db": _psnr(mse), "depth_psnr_db_view_mean": float(np.mean(ps)),
+    hits = valid & ~miss
+    l1_hits = float(np.abs(err[hits]).mean()) if hits.any() else None
+    return {"depth_l1_m": l1, "depth_l1_m_on_hits": l1_hits, "hit_fraction": float(hits.sum() / n_valid), "depth_psnr_db": _psnr(mse), "depth_psnr_db_view_mean": float(np.mean(ps)),
             "max_gt_depth_m": max_gt, "n_valid_pixels": n_valid, "n_excluded_pixels": int((~valid).sum()),
             "n_reconstruction_misses": int((miss & valid).sum()), "miss_depth": miss_depth,
             "per_view_l1_m": per_view_l1, "per_view_psnr_db": per_view_psnr}
