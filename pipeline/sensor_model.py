@@ -51,12 +51,17 @@ def photon_scale(pixel_totals: np.ndarray, noise: NoiseSpec, first_bounce_pixel=
     """Factor from input units to expected photons: photons_per_pixel / brightest pixel total."""
     if noise.photons_per_pixel <= 0:
         return 1.0
-    totals = np.asarray(pixel_totals, np.float64)
+    all_totals = np.asarray(pixel_totals, np.float64)
+    totals = all_totals
     if first_bounce_pixel is not None:
-        totals = totals.copy()
+        totals = all_totals.copy()
         totals[int(first_bounce_pixel[0]), int(first_bounce_pixel[1])] = 0.0
     brightest = float(totals.max()) if totals.size else 0.0
-    return noise.photons_per_pixel / brightest if brightest > 0 else 0.0
+    if brightest <= 0:
+        # no visible pixel gets two-bounce light (the spot lights only hidden surfaces):
+        # budget the first-bounce return instead, so it is not scaled away
+        brightest = float(all_totals.max()) if all_totals.size else 0.0
+    return noise.photons_per_pixel / brightest if brightest > 0 else 1.0
 
 
 def gate_starts(expected_path, sensor: SensorSpec, window_bins: int) -> np.ndarray:

@@ -202,3 +202,15 @@ def test_bad_expected_input_is_a_clear_error():
     tiny[0, 0, 3], tiny[0, 1, 3] = 1e-30, 1.0                       # scale 1e10 / 1e-30 overflows float32
     with pytest.raises(ValueError, match="photons_per_pixel"):
         run(tiny, s, NoiseSpec(photons_per_pixel=1e10), 0, first_bounce_pixel=(0, 1))
+
+
+def test_spot_lighting_only_hidden_surfaces_keeps_its_first_bounce():
+    """No visible pixel gets two-bounce light: the budget falls on the first-bounce return
+    instead of scaling everything (the first bounce included) to zero."""
+    from pipeline.sensor_model import photon_scale
+
+    noise = NoiseSpec(photons_per_pixel=50.0)
+    totals = np.zeros((4, 4))
+    totals[2, 1] = 8.0                      # only the first-bounce pixel has light
+    assert photon_scale(totals, noise, first_bounce_pixel=(2, 1)) == pytest.approx(50.0 / 8.0)
+    assert photon_scale(np.zeros((4, 4)), noise, first_bounce_pixel=(2, 1)) == 1.0
