@@ -181,7 +181,10 @@ def main():
     load0 = os.getloadavg()
     mesh, src = cave_chair_scene()
     lds = paper_laser_directions()
-    out = {"benchmark": "measurements", "machine": machine_info(), "geometry": src, "rows": []}
+    import subprocess
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                            cwd=Path(__file__).resolve().parents[1]).stdout.strip() or None
+    out = {"benchmark": "measurements", "machine": machine_info(), "git_commit": commit, "geometry": src, "rows": []}
     print(f"machine: {out['machine']['cpu']} x{out['machine']['cpu_count']}, torch {out['machine']['torch']}")
     print(f"geometry: {src}; 16 paper spots, 391 bins")
     runs = [("analytic", 128, 3, None, 0.0)] + ([("analytic", 512, 1, None, 0.0)] if not args.skip_512 else []) \
