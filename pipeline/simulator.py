@@ -144,24 +144,24 @@ def first_bounce_pixel(p: SpotPlan, sensor, scene, depsgraph, geometry):
     p.first_bounce_radiance = (p.albedo / math.pi) * LASER_POWER_W / a_pix
 
 
-def facing_paths(p: SpotPlan, sensor, geometry) -> tuple[np.ndarray, np.ndarray]:
-    """Two-bounce paths (S, H, W) of samples that could be lit by l (facing it), and that mask."""
-    pos, nrm, _, valid = geometry
-    v = p.first_bounce - pos
-    facing = valid & (np.einsum("shwc,shwc->shw", nrm, v) > 0) & (v @ p.normal < 0)
-    paths = transient_binning.optical_path(pos, p.first_bounce, sensor.laser_origin, sensor.sensor_origin)
-    return paths, facing
-
-
 def window_bins_bound(plans, sensor, geometry) -> int:
     """A window length holding every non-zero bin of every spot (one layout for the dataset).
 
-    Also checks, before any rendering, that every path that could be lit fits the bin range.
+    Also checks, before any rendering, that every path that could be lit (the sample faces l
+    and l faces the sample) fits the bin range. float32 (+2 bins of margin): it is a bound.
     """
     kernel = transient_binning.PulseKernel(sensor)
+    pos, nrm, _, valid = geometry
+    f32 = np.float32
+    to_camera = np.linalg.norm(pos - sensor.sensor_origin.astype(f32), axis=-1)   # spot-independent
+    n_dot_x = np.einsum("shwc,shwc->shw", nrm, pos)
     spread = 0.0
     for p in plans:
-        paths, facing = facing_paths(p, sensor, geometry)
+        l = p.first_bounce.astype(f32)
+        v = l - pos
+        facing = valid & (nrm @ l - n_dot_x > 0) & (v @ p.normal.astype(f32) < 0)
+        d_lo = f32(np.linalg.norm(p.first_bounce - np.asarray(sensor.laser_origin)))
+        paths = d_lo + np.linalg.norm(v, axis=-1) + to_camera
         lit_paths = paths[facing]
         if lit_paths.size and (lit_paths.max() >= kernel.end_m or lit_paths.min() < kernel.start_m):
             need = int(math.ceil((lit_paths.max() - sensor.start_m) / sensor.bin_width_m)) + 1
