@@ -207,3 +207,12 @@ def test_bad_settings_are_refused(plane_ds):
         preprocess_dataset(ds, PreprocessSettings(shadow_threshold=1.5))
     with pytest.raises(PreprocessError, match="refine"):
         preprocess_dataset(ds, PreprocessSettings(refine="cubic"))
+
+
+def test_first_bounce_on_a_pixel_border(tmp_path):
+    """The laser spot projects exactly onto a pixel edge (col 10.0 of 16), as the paper's targets do at 512^2."""
+    ld = np.array([0.25, 1.0, 0.1])
+    ld /= np.linalg.norm(ld)
+    p, parts = write_analytic_dataset(tmp_path / "edge", plane_scene(3.0), default_sensor(16, 16, bins=391), [ld])
+    m = preprocess_dataset(load_dataset(p))
+    assert np.linalg.norm(m.spots[0].first_bounce - parts["spots"][0].first_bounce) < 1e-3

@@ -211,9 +211,17 @@ def find_first_bounce(tr: Transient, sensor, laser_direction, spot_id, settings:
         raise PreprocessError(f"spot {spot_id}: the laser ray never crosses the sensor's view within the "
                               f"histogram range; no first bounce can be seen")
     row, col, kb = row[ok], col[ok], kb[ok]
-    val = np.max([_read_bins(tr, row, col, np.clip(kb + s, 0, sensor.bins - 1)) for s in (-1, 0, 1)], axis=0)
-    i = int(np.argmax(val))
-    r0, c0 = int(row[i]), int(col[i])
+    # the 3 x 3 pixels around each projection, +-1 bin: a spot on a pixel border (the paper's targets
+    # land exactly on pixel edges at 512 x 512) or rounding must not hide the return
+    best_v, best_r, best_c = np.full(len(row), -1.0), row.copy(), col.copy()
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            rr, cc = np.clip(row + dr, 0, h - 1), np.clip(col + dc, 0, w - 1)
+            v = np.max([_read_bins(tr, rr, cc, np.clip(kb + s, 0, sensor.bins - 1)) for s in (-1, 0, 1)], axis=0)
+            better = v > best_v
+            best_v[better], best_r[better], best_c[better] = v[better], rr[better], cc[better]
+    i = int(np.argmax(best_v))
+    r0, c0 = int(best_r[i]), int(best_c[i])
     x = _pixel_dense(tr, r0, c0)
     lo, hi = max(int(kb[i]) - 2, 0), min(int(kb[i]) + 3, sensor.bins)
     k1 = lo + int(np.argmax(x[lo:hi]))
