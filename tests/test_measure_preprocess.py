@@ -209,10 +209,17 @@ def test_bad_settings_are_refused(plane_ds):
         preprocess_dataset(ds, PreprocessSettings(refine="cubic"))
 
 
-def test_first_bounce_on_a_pixel_border(tmp_path):
-    """The laser spot projects exactly onto a pixel edge (col 10.0 of 16), as the paper's targets do at 512^2."""
-    ld = np.array([0.25, 1.0, 0.1])
+def test_first_bounce_next_to_the_projected_pixel():
+    """The laser ray projects to col 10.999 (pixel 10) but the return landed in pixel 11, as when the spot
+    sits on a pixel border (the paper's targets do at 512^2) and rounding picks the neighbour."""
+    from torch_recon.dataset import Spot
+    from torch_recon.preprocess import find_first_bounce
+    sensor = default_sensor(16, 16, bins=391)
+    ld = np.array([2.999 / 8, 1.0, 0.0625])
     ld /= np.linalg.norm(ld)
-    p, parts = write_analytic_dataset(tmp_path / "edge", plane_scene(3.0), default_sensor(16, 16, bins=391), [ld])
-    m = preprocess_dataset(load_dataset(p))
-    assert np.linalg.norm(m.spots[0].first_bounce - parts["spots"][0].first_bounce) < 1e-3
+    window = np.zeros((16, 16, 391), np.float32)
+    k = int(6.0 / sensor.bin_width_m)                     # d = 3 m: first-bounce path 6 m
+    window[7, 11, k - 1:k + 2] = [100.0, 1000.0, 100.0]
+    fb = find_first_bounce(Transient.from_dense(window), sensor, ld, 0, PreprocessSettings())
+    assert fb.pixel == (7, 11)
+    assert abs(fb.distance - (k + 0.5) * sensor.bin_width_m / 2) < 0.01
