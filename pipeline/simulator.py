@@ -23,7 +23,7 @@ import numpy as np
 
 from pipeline import blender_scene as bs
 from pipeline import ground_truth, sensor_model, spot_selection, third_bounce, transient_binning
-from pipeline.cycles_render import CyclesRenderer
+from pipeline.cycles_render import EMITTER_OFFSET_M, CyclesRenderer
 from torch_recon.dataset import (DatasetError, DatasetWriter, Manifest, NoiseSpec, Provenance, PulseSpec,
                                  SensorSpec, Spot, TimeGate, TransientLayout, load_dataset, transient_relpath)
 from torch_recon.frames import focal_length_px, project_points
@@ -37,6 +37,12 @@ DEFAULT_ALBEDO = 0.8
 
 class SimulationError(RuntimeError):
     """A scene/setting combination that cannot be simulated; the message says which and why."""
+
+
+class WindowTooSmall(Exception):
+    def __init__(self, spot_id: int, needed: int):
+        super().__init__(spot_id, needed)
+        self.spot_id, self.needed = spot_id, needed
 
 
 @dataclass
@@ -144,7 +150,7 @@ def first_bounce_pixel(p: SpotPlan, sensor, scene, depsgraph, geometry):
     p.first_bounce_radiance = (p.albedo / math.pi) * LASER_POWER_W / a_pix
 
 
-def window_bins_bound(plans, sensor, geometry) -> int:
+def window_bins_bound(plans, sensor, geometry, footprint_m: float) -> int:
     """A window length holding every non-zero bin of every spot (one layout for the dataset).
 
     Also checks, before any rendering, that every path that could be lit (the sample faces l
@@ -159,7 +165,9 @@ def window_bins_bound(plans, sensor, geometry) -> int:
     for p in plans:
         l = p.first_bounce.astype(f32)
         v = l - pos
-        facing = valid & (nrm @ l - n_dot_x > 0) & (v @ p.normal.astype(f32) < 0)
+        # faces some point of the emitter disk (radius + offset), not only its centre
+        tol = f32(footprint_m + EMITTER_OFFSET_M + 1e-4)
+        facing = valid & (nrm @ l - n_dot_x > -tol) & (v @ p.normal.astype(f32) < tol)
         d_lo = f32(np.linalg.norm(p.first_bounce - np.asarray(sensor.laser_origin)))
         paths = d_lo + np.linalg.norm(v, axis=-1) + to_camera
         lit_paths = paths[facing]
@@ -202,6 +210,25 @@ def _previous_dataset(out):
 
 
 # -- the run ---------------------------------------------------------------------------------
+@dataclass
+class RunContext:
+    """What every spot of one run shares."""
+
+    cfg: object
+    scene_label: str
+    renderer: CyclesRenderer
+    sensor: SensorSpec
+    noise: NoiseSpec
+    geometry: tuple
+    window_bound: int
+    ambient_scale: np.ndarray | None
+    common: dict
+    old: object
+    mesh: object
+    vpl: object
+    timings: dict
+
+
 def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
     """Simulate and commit the dataset at out_dir; returns timings and counts."""
     t_start = time.perf_counter()
@@ -238,10 +265,10 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
         for p in plans:
             first_bounce_pixel(p, sensor, scene, depsgraph, geometry)
         t0 = time.perf_counter()
-        g_bound = window_bins_bound(plans, sensor, geometry)
+        g_bound = window_bins_bound(plans, sensor, geometry, cfg.footprint_radius_m)
         if cfg.bounces == 3:      # third-order light spreads over long paths: keep every bin
             g_bound = sensor.bins
-        t0 = _tick(timings, "window_bound_s", t0)
+        _tick(timings, "window_bound_s", t0)
         ambient = renderer.render_ambient() if (cfg.ambient_per_bin > 0) else None
         ambient_scale = None
         if ambient is not None:
@@ -253,59 +280,71 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
                   "bounces": cfg.bounces, "footprint": cfg.footprint_radius_m, "window_bound": g_bound,
                   "geometry": geometry_hash(triangles, geometry, albedos),
                   "ambient": None if ambient_scale is None else hashlib.sha256(ambient_scale.tobytes()).hexdigest()}
-        old = _previous_dataset(out_dir)
-        old_files = {s.content_hash: old.root / s.transient_file for s in old.manifest.spots} if old else {}
-        mesh = ground_truth.scene_mesh(triangles[0], triangles[1])
-        vpl = third_bounce.ThirdBounce(scene, depsgraph, cfg) if cfg.bounces == 3 else None
-
-        with DatasetWriter(out_dir) as writer:
-            spots, rgb_files, layout = [], [], None
-            for k, p in enumerate(plans):
-                t0 = time.perf_counter()
-                h = spot_hash(p, common)
-                rel = transient_relpath(p.id)
-                if h in old_files and old_files[h].is_file():
-                    writer.reuse_file(old_files[h], rel)
-                    what = "unchanged, reused"
-                    lay = old.manifest.layout
-                else:
-                    tr, lay = simulate_spot(p, renderer, sensor, noise, geometry, g_bound, ambient_scale, cfg, vpl,
-                                            timings)
-                    t1 = time.perf_counter()
-                    writer.write_transient(p.id, tr, lay.sample_type)
-                    _tick(timings, "write_s", t1)
-                    what = "rendered"
-                if layout is not None and (lay.kind, lay.window_bins) != (layout.kind, layout.window_bins):
-                    raise SimulationError(f"internal: spot {p.id} has layout {lay} unlike {layout}")
-                layout = lay
-                spots.append(Spot(id=p.id, laser_direction=p.direction.tolist(), transient_file=rel,
-                                  first_bounce=p.first_bounce.tolist(), content_hash=h))
-                if cfg.rgb:
-                    rgb_rel = f"rgb/spot_{p.id:04d}.png"
-                    renderer.render_rgb(p.first_bounce + 0.01 * p.normal, RGB_POWER_W * p.albedo,
-                                        str(writer.path(rgb_rel)))
-                    rgb_files.append(rgb_rel)
-                dt = time.perf_counter() - t0
-                timings.setdefault("spot_s", []).append(dt)
-                log(f"spot {k + 1}/{len(plans)} (id {p.id}, {p.name}): l = {np.round(p.first_bounce, 3).tolist()}, "
-                    f"albedo {p.albedo:.2f}, {what} in {dt:.2f} s")
-            t0 = time.perf_counter()
-            gt = ground_truth.write_ground_truth(writer, mesh, sensor, cfg)
-            timings["ground_truth_s"] = time.perf_counter() - t0
-            manifest = Manifest(sensor=sensor, spots=spots, layout=layout, noise=noise, ground_truth=gt,
-                                rgb_files=rgb_files,
-                                provenance=Provenance(generator="pipeline/simulate.py", generator_version=SIM_VERSION,
-                                                      seed=cfg.seed, blender_version=bs.blender_version(),
-                                                      scene=scene_label,
-                                                      extra={"config": cfg.to_dict(), "bounces": cfg.bounces,
-                                                             "subpixel_samples": cfg.subpixel_samples,
-                                                             "laser_power_w": LASER_POWER_W}))
-            writer.commit(manifest)
+        ctx = RunContext(cfg, scene_label, renderer, sensor, noise, geometry, g_bound, ambient_scale, common,
+                         _previous_dataset(out_dir), ground_truth.scene_mesh(triangles[0], triangles[1]),
+                         third_bounce.ThirdBounce(scene, depsgraph, cfg) if cfg.bounces == 3 else None, timings)
+        while True:   # a second pass only if a spot's signal outgrew the geometric window bound
+            try:
+                write_dataset(out_dir, plans, ctx)
+                break
+            except WindowTooSmall as exc:
+                # 25 % headroom so one more pass is very likely enough
+                ctx.window_bound = min(max(int(math.ceil(1.25 * exc.needed)), ctx.window_bound + 1), sensor.bins)
+                common["window_bound"] = ctx.window_bound
+                log(f"note: spot {exc.spot_id} needs {exc.needed} bins per pixel; writing again with "
+                    f"{ctx.window_bound}")
     finally:
         renderer.close()
     timings["total_s"] = time.perf_counter() - t_start
     log("timings: " + ", ".join(f"{k} {v:.2f}" for k, v in timings.items() if k != "spot_s"))
     return {"spots": len(plans), "timings": timings}
+
+
+def write_dataset(out_dir, plans, ctx: RunContext):
+    """Render (or reuse) every spot, write ground truth and commit: one atomic dataset."""
+    cfg, timings, old = ctx.cfg, ctx.timings, ctx.old
+    old_files = {s.content_hash: old.root / s.transient_file for s in old.manifest.spots} if old else {}
+    with DatasetWriter(out_dir) as writer:
+        spots, rgb_files, layout = [], [], None
+        for k, p in enumerate(plans):
+            t0 = time.perf_counter()
+            h = spot_hash(p, ctx.common)
+            rel = transient_relpath(p.id)
+            if h in old_files and old_files[h].is_file():
+                writer.reuse_file(old_files[h], rel)
+                what, lay = "unchanged, reused", old.manifest.layout
+            else:
+                tr, lay = simulate_spot(p, ctx.renderer, ctx.sensor, ctx.noise, ctx.geometry, ctx.window_bound,
+                                        ctx.ambient_scale, cfg, ctx.vpl, timings)
+                t1 = time.perf_counter()
+                writer.write_transient(p.id, tr, lay.sample_type)
+                _tick(timings, "write_s", t1)
+                what = "rendered"
+            if layout is not None and (lay.kind, lay.window_bins) != (layout.kind, layout.window_bins):
+                raise SimulationError(f"internal: spot {p.id} has layout {lay} unlike {layout}")
+            layout = lay
+            spots.append(Spot(id=p.id, laser_direction=p.direction.tolist(), transient_file=rel,
+                              first_bounce=p.first_bounce.tolist(), content_hash=h))
+            if cfg.rgb:
+                rgb_rel = f"rgb/spot_{p.id:04d}.png"
+                ctx.renderer.render_rgb(p.first_bounce + 0.01 * p.normal, RGB_POWER_W * p.albedo,
+                                        str(writer.path(rgb_rel)))
+                rgb_files.append(rgb_rel)
+            dt = time.perf_counter() - t0
+            log(f"spot {k + 1}/{len(plans)} (id {p.id}, {p.name}): l = {np.round(p.first_bounce, 3).tolist()}, "
+                f"albedo {p.albedo:.2f}, {what} in {dt:.2f} s")
+        t0 = time.perf_counter()
+        gt = ground_truth.write_ground_truth(writer, ctx.mesh, ctx.sensor, cfg)
+        timings["ground_truth_s"] = time.perf_counter() - t0
+        manifest = Manifest(sensor=ctx.sensor, spots=spots, layout=layout, noise=ctx.noise, ground_truth=gt,
+                            rgb_files=rgb_files,
+                            provenance=Provenance(generator="pipeline/simulate.py", generator_version=SIM_VERSION,
+                                                  seed=cfg.seed, blender_version=bs.blender_version(),
+                                                  scene=ctx.scene_label,
+                                                  extra={"config": cfg.to_dict(), "bounces": cfg.bounces,
+                                                         "subpixel_samples": cfg.subpixel_samples,
+                                                         "laser_power_w": LASER_POWER_W}))
+        writer.commit(manifest)
 
 
 def _tick(timings, key, t0):
@@ -339,7 +378,7 @@ def simulate_spot(p, renderer, sensor, noise, geometry, g_bound, ambient_scale, 
         raise SimulationError(f"spot {p.id}: {exc}") from None
     if layout.kind == "windowed" and not sensor.time_gate.enabled and layout.window_bins != g_bound:
         if layout.window_bins > g_bound:
-            raise SimulationError(f"internal: spot {p.id} needs {layout.window_bins} bins > bound {g_bound}")
+            raise WindowTooSmall(p.id, layout.window_bins)
         tr = sensor_model.widen_window(tr, g_bound)
         layout = TransientLayout("windowed" if g_bound < sensor.bins else "dense", g_bound, layout.sample_type)
     _tick(timings, "sensor_model_s", t0)

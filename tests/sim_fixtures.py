@@ -38,11 +38,13 @@ def add(part, hidden=False):
     sc.collection.objects.link(ob)
     me.materials.append(diffuse_material(part.name, part.albedo))
     ob.hide_render = hidden
-add(box("wall", (-2, 3, -1), (2, 3.05, 2), 0.7))
-add(box("floor", (-2, 0, -1.05), (2, 3, -1), 0.5))
-add(box("block", (-0.3, 2.0, -1), (0.3, 2.4, -0.4), 0.6))
+for name, lo, hi, albedo in {parts!r}:
+    add(box(name, lo, hi, albedo))
 if opts.get("hidden_box"):
     add(box("hidden", (-1.5, 1.0, -0.9), (1.5, 1.2, 1.5), 0.9), hidden=True)
+if opts.get("laser_at"):
+    laser = bpy.data.objects.new("laser", None); sc.collection.objects.link(laser)
+    laser.location = opts["laser_at"]
 if opts.get("camera", True):
     cam = bpy.data.cameras.new("cam"); cam.sensor_fit = "HORIZONTAL"; cam.angle = 1.5707963
     co = bpy.data.objects.new("cam", cam); sc.collection.objects.link(co); sc.camera = co
@@ -54,9 +56,28 @@ bpy.ops.wm.save_as_mainfile(filepath={path!r})
 """
 
 
+BLEND_PARTS = (("wall", (-2, 3, -1), (2, 3.05, 2), 0.7), ("floor", (-2, 0, -1.05), (2, 3, -1), 0.5),
+               ("block", (-0.3, 2.0, -1), (0.3, 2.4, -0.4), 0.6))
+
+
+def blend_trimesh():
+    """The trimesh and face albedo of build_blend's scene (without the hidden box)."""
+    import numpy as np
+    import trimesh
+
+    from pipeline.scenes import box
+
+    parts = [box(*p) for p in BLEND_PARTS]
+    off = np.cumsum([0] + [len(p.vertices) for p in parts])
+    mesh = trimesh.Trimesh(np.concatenate([p.vertices for p in parts]),
+                           np.concatenate([p.faces + o for p, o in zip(parts, off)]), process=False)
+    return mesh, np.concatenate([np.full(len(p.faces), p.albedo) for p in parts])
+
+
 def build_blend(path, **opts) -> Path:
-    """A wall, a floor and a block (plus options: hidden_box, camera=False, config={...}, spots=[...])."""
-    code = textwrap.dedent(_BUILD).format(root=str(ROOT), opts=json.dumps(opts), path=str(path))
+    """A wall, a floor and a block (plus options: hidden_box, camera=False, laser_at=[x, y, z] (an
+    Empty named 'laser'), config={...}, spots=[...])."""
+    code = textwrap.dedent(_BUILD).format(root=str(ROOT), opts=json.dumps(opts), path=str(path), parts=BLEND_PARTS)
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     if proc.returncode != 0:
         raise AssertionError(proc.stderr[-3000:])
