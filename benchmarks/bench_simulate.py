@@ -134,7 +134,9 @@ def plot(rows, path):
     ax.axhline(120, color="r", ls="--", lw=1, label="target 2 min")
     ax.set_xticks(x, [f"{r['resolution']}²\n{r['peak_rss_mib']:.0f} MiB" for r in rows])
     ax.set_ylabel("seconds")
-    ax.set_title(f"simulate.py cave-chair, {rows[0]['spots']} spots, 391 bins (2-core CPU)")
+    load = max(max(r["load_average_1min_before_after"]) for r in rows)
+    ax.set_title(f"simulate.py cave-chair, {rows[0]['spots']} spots, 391 bins "
+                 f"({os.cpu_count()} cores, load average up to {load:.1f})", fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
