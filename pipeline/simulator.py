@@ -134,16 +134,20 @@ def first_bounce_pixel(p: SpotPlan, sensor, scene, depsgraph, geometry):
         log(f"warning: spot {p.id}: l is outside the sensor's view; no first-bounce return recorded")
         return
     r, cl = int(row), int(col)
+    dist_lc = float(np.linalg.norm(p.first_bounce - c))
+    to_l = (p.first_bounce - c) / max(dist_lc, 1e-12)
+    hit = bs.ray_cast(scene, depsgraph, c + 1e-4 * to_l, to_l)
+    if hit is not None and np.linalg.norm(hit[0] - c) < dist_lc - 1e-3:   # something in front of l
+        log(f"warning: spot {p.id}: l is hidden from the sensor; no first-bounce return recorded")
+        return
     pos, _, alb, valid = geometry
     d = np.linalg.norm(pos[:, r, cl] - p.first_bounce, axis=-1)
     d[~valid[:, r, cl]] = np.inf
-    dist_lc = float(np.linalg.norm(p.first_bounce - c))
     f_px = focal_length_px(sensor.width, sensor.height, sensor.fov_rad, sensor.fov_axis)
     footprint = dist_lc / f_px
-    if d.min() > 2.0 * footprint + 0.01:   # something in front of l: the sensor does not see the spot
-        log(f"warning: spot {p.id}: l is hidden from the sensor; no first-bounce return recorded")
-        return
-    p.albedo = float(np.mean(alb[int(np.argmin(d)), r, cl]))
+    k = int(np.argmin(d))
+    if d[k] < max(0.01, footprint):   # a sub-sample on the spot: albedo from the Diffuse Color pass (textures)
+        p.albedo = float(np.mean(alb[k, r, cl]))
     cos_view = abs(float(np.dot(p.normal, (c - p.first_bounce) / max(dist_lc, 1e-9))))
     a_pix = footprint ** 2 / max(cos_view, 1e-3)
     p.pixel = (r, cl)
@@ -179,6 +183,10 @@ def window_bins_bound(plans, sensor, geometry, footprint_m: float) -> int:
                 f"(--bins) or the bin width (--bin-ps)")
         hi = np.where(facing, paths, -np.inf).max(axis=0)
         lo = np.where(facing, paths, np.inf).min(axis=0)
+        if p.pixel is not None:     # the first-bounce return shares its pixel with two-bounce samples
+            p1 = transient_binning.first_bounce_path(p.first_bounce, sensor.laser_origin, sensor.sensor_origin)
+            hi[p.pixel] = max(hi[p.pixel], p1)
+            lo[p.pixel] = min(lo[p.pixel], p1)
         ok = np.isfinite(hi)
         if ok.any():
             spread = max(spread, float((hi[ok] - lo[ok]).max()))
