@@ -6,6 +6,8 @@ so the bpy-free tests see the same triangles.
 
 from __future__ import annotations
 
+import math
+
 import bpy
 import numpy as np
 from mathutils import Matrix, Vector
@@ -143,11 +145,14 @@ def sensor_camera(scene, name: str | None):
 
 def camera_fov(cam, width: int, height: int):
     """(field of view in radians, axis 'x' or 'y') as Cycles renders it at width x height."""
-    fit = cam.data.sensor_fit
+    data = cam.data
+    fit = data.sensor_fit
     if fit == "AUTO":
-        fit = "HORIZONTAL" if width >= height else "VERTICAL"
-    axis = "x" if fit == "HORIZONTAL" else "y"
-    return float(cam.data.angle_x if axis == "x" else cam.data.angle_y), axis
+        # AUTO: sensor_width spans the image's larger dimension, whichever it is
+        return 2.0 * math.atan(0.5 * data.sensor_width / data.lens), ("x" if width >= height else "y")
+    if fit == "HORIZONTAL":
+        return 2.0 * math.atan(0.5 * data.sensor_width / data.lens), "x"
+    return 2.0 * math.atan(0.5 * data.sensor_height / data.lens), "y"
 
 
 def rigid_c2w(cam) -> np.ndarray:

@@ -68,3 +68,26 @@ def test_every_example_and_unknown_name():
     assert scenes.ambient().lights and scenes.ambient().config_overrides["ambient_per_bin"] > 0
     with pytest.raises(KeyError):
         scenes.example("nope")
+
+
+@pytest.mark.parametrize("fit", ["AUTO", "HORIZONTAL", "VERTICAL"])
+@pytest.mark.parametrize("size", [(64, 32), (32, 64)])
+def test_camera_fov_matches_blenders_view_frame(fit, size):
+    """The field of view we record is the one Cycles renders (checked against view_frame)."""
+    import math
+
+    import bpy
+    from pipeline.blender_scene import camera_fov
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    data = bpy.data.cameras.new("lidar")
+    cam = bpy.data.objects.new("lidar", data)
+    scene = bpy.context.scene
+    scene.collection.objects.link(cam)
+    data.sensor_fit = fit
+    scene.render.resolution_x, scene.render.resolution_y = size
+    corners = [tuple(v) for v in data.view_frame(scene=scene)]
+    fov, axis = camera_fov(cam, *size)
+    k = 0 if axis == "x" else 1
+    expected = 2.0 * math.atan(max(c[k] for c in corners) / -corners[0][2])
+    assert fov == pytest.approx(expected, rel=1e-6)
