@@ -64,13 +64,14 @@ def run(args) -> int:
                                        device=device, progress=True)
         print("grid search (shadow threshold, occupancy threshold, depth L1 m):")
         for st, ot, sc in table:
-            print(f"  {st!s:>5}  {ot:4.2f}  {sc:.4f}")
+            print(f"  {st!s:>5}  {ot:4.2f}  {sc:.4f}" + ("  (no surface)" if not np.isfinite(sc) else ""))
     else:
         res = carve(meas, bs, device=device, progress=True)
     t_carve = time.perf_counter() - t1
     meta = {"method": "bflidar", "settings": res.settings, "preprocess_settings": meas.settings,
             "seconds": {"preprocess": round(t_pre, 3), "carve": round(t_carve, 3)},
-            "dataset_hash": ds.content_hash(), "grid_search": table}
+            "dataset_hash": ds.content_hash(),
+            "grid_search": None if table is None else [[st, ot, sc if np.isfinite(sc) else None] for st, ot, sc in table]}
     exp = export_mesh(res.occupancy, res.bbox_min, res.bbox_max, res.level, out / "mesh.glb", meta,
                       extra_formats=(".ply", ".obj"))
     print(f"BF Lidar: preprocess {t_pre:.2f} s, carving {t_carve:.2f} s; mesh {exp.n_faces} faces "
