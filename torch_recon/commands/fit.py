@@ -62,6 +62,8 @@ def run(args) -> int:
     if t.history:
         h = t.history[-1]
         print(f"final loss {h['loss']:.4g} (distance {h['dist']:.3g}, shadow {h['shadow']:.3g})")
+    if "mesh_error" in r.metadata:
+        print(f"  no mesh: {r.metadata['mesh_error']}")
     for kind, path in r.mesh_files.items():
         print(f"  {kind:8s} {path}")
     print(f"  volume   {Path(args.out) / 'volume.npz'}\n  report   {Path(args.out) / 'fit.json'}")

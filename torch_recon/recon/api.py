@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -49,12 +50,19 @@ class FitResult:
         with torch.no_grad():
             return self.model.density(pts.to(self.model.device)).to(pts.device)
 
-    def render_depth(self, camera_to_world, width: int, height: int, fov_rad: float, fov_axis: str = "x"):
-        """Range image (H, W) of the fitted field from any camera (volume rendering)."""
-        o, d = pixel_rays(camera_to_world, width, height, fov_rad, fov_axis)
-        dev = self.model.device
-        t = lambda a: torch.as_tensor(a.reshape(-1, 3), dtype=torch.float32, device=dev)  # noqa: E731
-        return self.model.render_depth(t(o), t(d)).cpu().numpy().reshape(height, width)
+    def render_depth(self, camera_to_world, width: int, height: int, fov_rad: float, fov_axis: str = "x",
+                     min_opacity: float | None = None):
+        """Range image (H, W) of the fitted field from any camera (the mode's own volume rendering).
+
+        min_opacity None: leftover transmittance lands at the box exit; a number: torch_recon.evaluate's
+        convention (depth normalised by opacity, inf = miss below that opacity)."""
+        return render_model_depth(self.model, camera_to_world, width, height, fov_rad, fov_axis, min_opacity)
+
+
+def render_model_depth(model, camera_to_world, width, height, fov_rad, fov_axis="x", min_opacity=None):
+    o, d = pixel_rays(camera_to_world, width, height, fov_rad, fov_axis)
+    t = lambda a: torch.as_tensor(a.reshape(-1, 3), dtype=torch.float32, device=model.device)  # noqa: E731
+    return model.render_depth(t(o), t(d), min_opacity=min_opacity).cpu().numpy().reshape(height, width)
 
 
 def resolve_device(name: str) -> torch.device:
@@ -133,8 +141,14 @@ def fit(source, mode: str = "fast", out=None, config: FitConfig | None = None, o
         tmp.replace(out_dir / VOLUME_NAME)
         if export:
             result.metadata["run_seconds"] = round(time.perf_counter() - t_start, 3)
-            result.mesh_files, result.mesh = export_volume(vol, lo, hi, cfg.mesh_level, out_dir / "mesh",
-                                                           result.metadata)
+            from ..mesh_export import MeshExportError
+
+            try:
+                result.mesh_files, result.mesh = export_volume(vol, lo, hi, cfg.mesh_level, out_dir / "mesh",
+                                                               result.metadata)
+            except MeshExportError as exc:      # e.g. an early stop with nothing occupied yet
+                result.metadata["mesh_error"] = str(exc)
+                warnings.warn(f"no mesh written: {exc}", RuntimeWarning, stacklevel=2)
     result.total_seconds = time.perf_counter() - t_start
     result.metadata["run_seconds"] = round(result.total_seconds, 3)
     if out_dir is not None:

@@ -45,6 +45,7 @@ class FastConfig:
     shell_voxels: float = 2.0         # ... and this close to the box faces (walls, floor, ceiling)
     fill_min_shadow: int = 2          # ... and where at least this many shadowed secondary rays pass (0: off)
     carve_core: float = 0.3           # a lit ray carves a voxel only through its central 0.6-voxel cube
+    carve_spacing_voxels: float = 1.0  # carve with pixels about this many voxels apart at the far surfaces
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
     surface_margin_voxels: float = 1.0  # camera free space stops this far before the visible surface
     occupancy_threshold: float = 0.01  # cells whose neighbourhood has sigma * voxel below this are skipped

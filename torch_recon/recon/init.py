@@ -101,26 +101,27 @@ def _segment_counts(data: RayData, box: GridBox, mask, off, step, core):
     return counts
 
 
-def _pixel_stride(data: RayData, voxel: float) -> int:
-    """Pixel stride keeping neighbouring carving rays within 0.7 voxel of each other out to the far surfaces."""
+def _pixel_stride(data: RayData, voxel: float, spacing_voxels: float = 1.0) -> int:
+    """Pixel stride keeping neighbouring carving rays within `spacing_voxels` of each other out to the
+    far surfaces (the 95th percentile depth): finer images carve with a subset of their pixels."""
     d = data.visible_depth[torch.isfinite(data.visible_depth)]
     if d.numel() == 0:
         return 1
     dirs = data.pixel_dirs.reshape(data.height, data.width, 3)
     ang = float(torch.arccos((dirs[0, 0] * dirs[0, 1]).sum().clamp(-1, 1))) if data.width > 1 else 1.0
     footprint = max(ang * float(torch.quantile(d, 0.95)), 1e-6)
-    return max(1, int(0.7 * voxel / footprint))
+    return max(1, int(spacing_voxels * voxel / footprint))
 
 
 def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.0, carve_min_lit: int = 1,
                   secondary_offset_m: float = 0.0, step_voxels: float = 0.5, carve_core: float = 0.5,
-                  count_shadow: bool = False):
+                  count_shadow: bool = False, carve_spacing_voxels: float = 1.0):
     """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden; and the mean
     signed distance (m, along camera rays, + behind the surface; NaN far from any visible surface)."""
     dev = data.pixel_dirs.device
     n = int(np.prod(box.shape))
     step = step_voxels * box.voxel
-    stride = _pixel_stride(data, box.voxel)
+    stride = _pixel_stride(data, box.voxel, carve_spacing_voxels)
     rows = torch.arange(0, data.height, stride, device=dev)
     cols = torch.arange(0, data.width, stride, device=dev)
     sub = (rows[:, None] * data.width + cols[None, :]).reshape(-1)
@@ -220,7 +221,8 @@ def initial_grid(data: RayData, box: GridBox, cfg, camera_to_world, fov_x: float
     """The fast mode's starting field (cfg: FastConfig)."""
     label, sd, shadow_count = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit,
                                             secondary_offset_m, cfg.step_voxels, cfg.carve_core,
-                                            count_shadow=cfg.fill_min_shadow > 0)
+                                            count_shadow=cfg.fill_min_shadow > 0,
+                                            carve_spacing_voxels=cfg.carve_spacing_voxels)
     free = (label == 2) | (label == 3)
     if cfg.hidden_thickness_m is not None:   # hidden and uncarved: occupied only near surfaces / walls
         fov = fov_x if data.width >= data.height else fov_y

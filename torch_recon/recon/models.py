@@ -117,14 +117,16 @@ class FastModel:
         return loss, stats
 
     @torch.no_grad()
-    def render_depth(self, origins, dirs, chunk=1 << 14):
+    def render_depth(self, origins, dirs, chunk=1 << 14, min_opacity=None):
+        """Expected depth; leftover transmittance goes to the box exit, or with `min_opacity` the
+        evaluator's convention: sum(w t) / sum(w), inf (a miss) below that opacity."""
         out = []
         for i in range(0, origins.shape[0], chunk):
             o, d = origins[i:i + chunk], dirs[i:i + chunk]
             near, far = ray_box(o, d, self.grid.box.bbox_min, self.grid.box.bbox_max)
             far = torch.maximum(far, near)
             r = render_pruned(self.grid, self.occupancy, o, d, near, far, self.step_len, self.tau_step)
-            out.append(r.depth + (1.0 - r.opacity) * far)
+            out.append(_depth(r, far, min_opacity))
         return torch.cat(out) if out else origins.new_zeros(0)
 
     def density(self, pts):
@@ -212,13 +214,14 @@ class PlatoNeRFModel:
         return pair_loss(self, self.data, idx, step, total, self.cfg, self.cfg.loss.secondary_offset_m)
 
     @torch.no_grad()
-    def render_depth(self, origins, dirs, chunk=2048):
+    def render_depth(self, origins, dirs, chunk=2048, min_opacity=None):
+        """The method's own test rendering (64 + 128 samples, fine network); conventions as FastModel."""
         out = []
         for i in range(0, origins.shape[0], chunk):
             o, d = origins[i:i + chunk], dirs[i:i + chunk]
             near, far = self._bounds(o, d)
             fine, _ = self._render(o, d, near, far, train=False)
-            out.append(fine.depth + (1.0 - fine.opacity) * far)
+            out.append(_depth(fine, far, min_opacity))
         return torch.cat(out) if out else origins.new_zeros(0)
 
     def density(self, pts):
@@ -246,6 +249,13 @@ class PlatoNeRFModel:
         self.fine.load_state_dict(st["fine"])
         self.make_optimizer()
         self.optimizer.load_state_dict(st["optimizer"])
+
+
+def _depth(r, far, min_opacity):
+    if min_opacity is None:
+        return r.depth + (1.0 - r.opacity) * far
+    d = r.depth / r.opacity.clamp(min=1e-10)
+    return torch.where(r.opacity >= min_opacity, d, torch.full_like(d, float("inf")))
 
 
 def build_model(data: RayData, cfg: FitConfig, meas_meta: dict, generator: torch.Generator):
