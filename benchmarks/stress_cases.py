@@ -25,13 +25,10 @@ PHOTON_LEVELS = (1, 3, 10, 30, 100, 1000, 10000)
 # pixels falls under the 0.15 threshold (about 12 % of lit pixels in sim-no-shadows).
 SIM_SHADOW_AGREEMENT = 0.75
 
-#: cases that fail because of a bug outside benchmarks/ (reported; the tests mark them xfail, strict)
-KNOWN_ISSUES = {
-    "sim-all-shadow": "pipeline/sensor_model.py photon_scale(): with no two-bounce light outside the first-bounce "
-                      "pixel the photon scale is 0, so the first-bounce return is zeroed too (all-zero transient)",
-    "sim-grazing-spot": "pipeline/simulator.py window_bins_bound() underestimates the window for a grazing spot in "
-                        "a 20 m corridor: 'internal: spot 1 needs 136 bins > bound 58'",
-}
+#: cases that fail because of a bug outside benchmarks/ -> reason (reported; the tests mark them xfail, strict,
+#: so a fix makes the test fail until the entry is removed). Found and since fixed: sim-all-shadow (photon scale
+#: zeroed the first-bounce return when no two-bounce light existed), sim-grazing-spot (window bound too small).
+KNOWN_ISSUES: dict = {}
 
 
 # ---------------------------------------------------------------- synthetic datasets

@@ -130,26 +130,21 @@ def small_fit_config(steps=12, resolution=24):
 
 
 def fit_checked(meas, out: Path, steps=12, resolution=24, dataset=None) -> dict:
-    """Short fast-mode fit -> finite volume -> exported mesh with finite vertices -> finite metrics.
-
-    The mesh is exported here (export=False in fit) because fit(out=..., export=True) passes an
-    out path without suffix to mesh_export (see docs/benchmarks.md, known issues).
-    """
-    from torch_recon.mesh_export import export_mesh
+    """Short fast-mode fit exporting its mesh -> finite volume, finite mesh vertices, finite metrics."""
     from torch_recon.recon import fit
-    r = fit(meas, config=small_fit_config(steps, resolution), export=False)
+    r = fit(meas, out=out, config=small_fit_config(steps, resolution), export=True)
     finite("fitted volume", r.volume)
     metrics = {"fit_steps": r.train.steps_done, "fit_seconds": round(r.total_seconds, 2),
                "nan_restores": r.train.nan_restores, "occupied_fraction": float((r.volume > r.level).mean())}
     if r.train.nan_restores:
         raise NonFinite(f"fit restored {r.train.nan_restores} time(s) after a NaN step")
-    out.mkdir(parents=True, exist_ok=True)
-    ex = export_mesh(r.volume, r.bbox_min, r.bbox_max, r.level, out / "mesh.ply", {"method": "stress"})
-    finite("exported mesh vertices", ex.mesh.vertices)
-    metrics["mesh_faces"] = int(ex.n_faces)
-    if dataset is not None and dataset.test_views() is not None and ex.n_faces:
+    if r.mesh is None:
+        raise CheckFailed("fit(out=..., export=True) returned no mesh", metrics)
+    finite("exported mesh vertices", r.mesh.vertices)
+    metrics["mesh_faces"] = int(len(r.mesh.faces))
+    if dataset is not None and dataset.test_views() is not None and len(r.mesh.faces):
         from torch_recon.evaluate import EvalSettings, evaluate
-        rep = evaluate(dataset, out / "eval", mesh=ex.mesh, settings=EvalSettings(n_surface_samples=2000,
+        rep = evaluate(dataset, out / "eval", mesh=r.mesh, settings=EvalSettings(n_surface_samples=2000,
                                                                                   error_images=0))
         for k in ("depth_l1_m", "depth_psnr_db", "chamfer_m", "fscore"):
             if rep.get(k) is not None:
