@@ -98,7 +98,7 @@ def summarise(runs, log=print) -> dict:
         t_ref = time_to_reach(ref) if ref else None
         log(f"\n{scene}: depth L1 / PSNR on the test views against wall time (* = Pareto front)")
         log(f"  {'method':26s} {'wall s':>7s} {'L1 m':>7s} {'PSNR dB':>7s} {'t(L1<=0.0862) s':>16s} "
-            f"{'vs reference':>13s}")
+            f"{'vs reference':>13s} {'median view L1':>14s}")
         rows = []
         for r in sorted(rs, key=lambda r: r["wall_seconds"]):
             t = time_to_reach(r)
@@ -114,9 +114,10 @@ def summarise(runs, log=print) -> dict:
                 ratio = "-"
             log(f"{'*' if r['label'] in front else ' '} {r['label']:26s} {r['wall_seconds']:7.1f} "
                 f"{r['depth_l1_m']:7.4f} {r['depth_psnr_db']:7.2f} {('-' if t is None else f'{t:.1f}'):>16s} "
-                f"{ratio:>13s}")
+                f"{ratio:>13s} {r.get('view_l1_median_m', float('nan')):14.4f}")
             rows.append({"label": r["label"], "wall_seconds": r["wall_seconds"], "depth_l1_m": r["depth_l1_m"],
-                         "depth_psnr_db": r["depth_psnr_db"], "time_to_paper_l1_s": t, "vs_reference": ratio,
+                         "depth_psnr_db": r["depth_psnr_db"], "view_l1_median_m": r.get("view_l1_median_m"),
+                         "time_to_paper_l1_s": t, "vs_reference": ratio,
                          "pareto": r["label"] in front})
         log(f"  paper (PlatoNeRF, 512 px, GPU hours): L1 {PAPER_L1_M} m, PSNR {PAPER_PSNR_DB} dB")
         same = []

@@ -91,7 +91,12 @@ class Views:
             pred = np.full_like(self.gt, np.inf)
         else:
             pred = np.stack([render_mesh_depth(mesh, c, s.width, s.height, s.fov_rad, s.fov_axis) for c in self.cams])
-        return _keep(depth_metrics(pred, self.gt))
+        out = _keep(depth_metrics(pred, self.gt))
+        ok = np.isfinite(self.gt)
+        err = np.abs(np.where(np.isfinite(pred), pred, 0.0) - np.where(ok, self.gt, 0.0))   # misses count as depth 0
+        per_view = [float(e[o].mean()) for e, o in zip(err, ok) if o.any()]
+        out["view_l1_median_m"] = float(np.median(per_view))      # robust to a few views inside a thick wall
+        return out
 
     def volume_metrics(self, volume, bbox_min, bbox_max, level) -> dict:
         """Metrics of an opacity volume with values at voxel centres of the box (the fit's convention)."""
