@@ -26,7 +26,6 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import numpy as np  # noqa: E402
 
 from benchmarks.common import REPO_ROOT, RESULTS_DIR, machine_info, write_json  # noqa: E402
 from benchmarks.stress_cases import KNOWN_ISSUES, all_cases  # noqa: E402
