@@ -68,6 +68,7 @@ class Runner:
     def fit_row(self, level, meas, views, prep_s, **extra):
         r = run_fit(meas, views, "fast", self.a.budget, self.a.grid, threads=self.a.threads, prep_seconds=prep_s)
         row = {"level": level, "depth_l1_m": r["depth_l1_m"], "depth_psnr_db": r["depth_psnr_db"],
+               "view_l1_median_m": r.get("view_l1_median_m"),
                "wall_seconds": r["wall_seconds"], "preprocess_seconds": prep_s, "steps": r["steps"],
                "signal_fraction": float(sum(s.signal.mean() for s in meas.spots) / len(meas.spots)), **extra}
         print(f"    {str(level):>24s}  L1 {row['depth_l1_m']:.4f} m  PSNR {row['depth_psnr_db']:5.2f} dB  "
