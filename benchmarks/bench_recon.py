@@ -131,6 +131,19 @@ def launch(label, mode, res, budget, extra, common) -> dict:
     return json.loads(p.stdout.strip().splitlines()[-1])
 
 
+def compare(runs):
+    """platonerf vs fast at the same resolution: time to reach the fast mode's final (subset) L1."""
+    for pn in runs:
+        fast = next((r for r in runs if r["mode"] == "fast" and r["label"] == f"fast-{pn['resolution']}"), None)
+        if pn["mode"] != "platonerf" or fast is None:
+            continue
+        t_reach = time_to_reach(pn["curve"], fast["curve"][-1]["depth_l1_m"])
+        pn["fast_subset_l1_m"] = fast["curve"][-1]["depth_l1_m"]
+        pn["time_to_fast_l1_s"] = t_reach
+        pn["speedup_vs_fast"] = (t_reach / fast["train_seconds"]) if t_reach else None
+        pn["speedup_lower_bound"] = None if t_reach else pn["train_seconds"] / max(fast["train_seconds"], 1e-9)
+
+
 def time_to_reach(curve, target):
     """First training time at which the (subset) learning curve reaches `target` L1."""
     for c in curve:
@@ -151,6 +164,7 @@ def main():
     ap.add_argument("--view-res", type=int, default=128)
     ap.add_argument("--workdir", default="/tmp/bench_recon")
     ap.add_argument("--merge", action="store_true", help="keep other runs already in results/recon.json")
+    ap.add_argument("--table-only", action="store_true", help="reprint the table and plot from results/recon.json")
     # single-run arguments (internal)
     ap.add_argument("--single", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--label", default="run")
@@ -191,14 +205,22 @@ def main():
         if res == args.res[0] and not args.no_ablations:
             ab_budget = 10 if args.quick else 90
             g = ["--grid", str(grid)]
-            for label, sets in (("fast-init-only", ["steps=0"]),
+            for label, sets in (("fast-init-only", ["steps=0", "fast.coarse_fraction=0"]),
                                 ("fast-no-carving", ["fast.carve_min_lit=1000000"]),
                                 ("fast-no-pruning", ["fast.occupancy_threshold=-1"])):
                 runs.append(launch(f"{label}-{res}", "fast", res, ab_budget, g + ["--set", *sets], common))
     prev = RESULTS_DIR / "recon.json"
+    if args.table_only:
+        out = json.loads(prev.read_text())
+        compare(out["runs"])
+        print_table(out["runs"], out["machine"])
+        write_json(prev, out)
+        plot(out["runs"], RESULTS_DIR / "recon.png")
+        return
     if args.merge and prev.is_file():    # keep earlier runs (e.g. 128 x 128) when adding others (512 x 512)
         mine = {r["label"] for r in runs}
         runs = [r for r in json.loads(prev.read_text())["runs"] if r["label"] not in mine] + runs
+    compare(runs)
     print_table(runs, info)
     out = {"machine": info, "data": "ideal measurements (analytic ray casting) of cave-chair, 16 spots",
            "test_views": {"dolly": args.dolly, "orbit": args.orbit, "resolution": args.view_res},
@@ -227,8 +249,9 @@ def print_table(runs, info):
                 print(f"platonerf reached the fast mode's L1 after {r['time_to_fast_l1_s']:.0f} s: "
                       f"{r['speedup_vs_fast']:.1f}x the fast mode's training time")
             else:
-                print(f"platonerf did not reach the fast mode's L1 within {r['train_seconds']:.0f} s "
-                      f"(its L1 then: {r['depth_l1_m']:.4f} m); time ratio > {r['speedup_lower_bound']:.1f}x")
+                print(f"platonerf did not reach the fast mode's L1 ({r['fast_subset_l1_m']:.4f} m on the view subset) "
+                      f"within {r['train_seconds']:.0f} s of training (its subset L1 then: {r['depth_l1_m']:.4f} m); "
+                      f"time ratio > {r['speedup_lower_bound']:.1f}x")
 
 
 def plot(runs, path):

@@ -86,7 +86,11 @@ class FastModel:
             tau = self.grid.density_scale * F.softplus(self.grid.raw) * self.grid.box.voxel
             occ = F.max_pool3d((tau > self.fc.occupancy_threshold).float(), 3, 1, 1) > 0
             self.occupancy = occ[0, 0].permute(2, 1, 0).contiguous()
-            self.tau_step = (tau[0, 0] * self.fc.step_voxels).permute(2, 1, 0).contiguous()
+            # early termination must not stop too soon: the smallest raw density in a cell's neighbourhood
+            # bounds the trilinear value from below, so its optical depth is a safe estimate
+            raw_lo = -F.max_pool3d(-self.grid.raw, 3, 1, 1)
+            tau_lo = self.grid.density_scale * F.softplus(raw_lo) * self.grid.box.voxel
+            self.tau_step = (tau_lo[0, 0] * self.fc.step_voxels).permute(2, 1, 0).contiguous()
 
     def before_step(self, step: int, total: int) -> bool:
         """Coarse -> fine switch and occupancy refresh; True when the optimiser was rebuilt."""
