@@ -38,10 +38,17 @@ def _caster(mesh):
     return mesh.ray  # trimesh picks Embree (embreex) when installed
 
 
-def first_hits(mesh, origins, dirs):
-    """Nearest hit per ray: (hit mask (N,), points (N, 3), face index (N,), distance (N,))."""
+def first_hits(mesh, origins, dirs, cull_back_faces: bool = False, max_layers: int = 16):
+    """Nearest hit per ray: (hit mask (N,), points (N, 3), face index (N,), distance (N,)).
+
+    With `cull_back_faces`, faces whose normal points along the ray are passed through
+    (one-sided surfaces): a camera just inside a reconstructed solid sees what lies beyond
+    the face it is behind, as a renderer with back-face culling would. Needs outward normals.
+    """
     origins = np.asarray(origins, np.float64).reshape(-1, 3)
     dirs = np.asarray(dirs, np.float64).reshape(-1, 3)
+    if cull_back_faces:
+        return _first_front_hits(mesh, origins, dirs, max_layers)
     n = len(dirs)
     loc, idx_ray, idx_tri = _caster(mesh).intersects_location(origins, dirs, multiple_hits=False)
     hit = np.zeros(n, bool)
@@ -52,6 +59,24 @@ def first_hits(mesh, origins, dirs):
     tri[idx_ray] = idx_tri
     dist = np.full(n, np.inf)
     dist[idx_ray] = np.linalg.norm(loc - origins[idx_ray], axis=1)
+    return hit, pts, tri, dist
+
+
+def _first_front_hits(mesh, origins, dirs, max_layers):
+    hit, pts, tri, dist = first_hits(mesh, origins, dirs)
+    back = hit.copy()
+    back[hit] = np.einsum("ij,ij->i", dirs[hit], mesh.face_normals[tri[hit]]) > 0
+    for _ in range(max_layers):
+        idx = np.flatnonzero(back)
+        if not len(idx):
+            break
+        h2, p2, t2, d2 = first_hits(mesh, pts[idx] + RAY_EPS * dirs[idx], dirs[idx])
+        hit[idx], pts[idx], tri[idx] = h2, p2, t2
+        dist[idx] = np.where(h2, dist[idx] + RAY_EPS + d2, np.inf)
+        back[:] = False
+        back[idx[h2]] = np.einsum("ij,ij->i", dirs[idx[h2]], mesh.face_normals[t2[h2]]) > 0
+    hit[back] = False          # still behind a back face after max_layers: treat as a miss
+    dist[back] = np.inf
     return hit, pts, tri, dist
 
 
@@ -178,9 +203,9 @@ def _centre_samples(mesh, c, c2w, sensor):
     return _camera_hits(mesh, c, dirs.reshape(-1, 3))
 
 
-def _camera_hits(mesh, c, dirs):
+def _camera_hits(mesh, c, dirs, cull_back_faces=False):
     """Pixel rays from the sensor centre; start RAY_EPS ahead so a surface through c is skipped."""
-    hit, x, tri, dist = first_hits(mesh, c + RAY_EPS * dirs, dirs)
+    hit, x, tri, dist = first_hits(mesh, c + RAY_EPS * dirs, dirs, cull_back_faces)
     nrm = np.zeros_like(x)
     nrm[hit] = mesh.face_normals[tri[hit]]
     return hit, x, tri, nrm, dist + RAY_EPS
@@ -193,9 +218,9 @@ def _project(c2w, w, h, f_px, p):
     return 0.5 * w + f_px * q[0] / -q[2], 0.5 * h - f_px * q[1] / -q[2]
 
 
-def range_image(mesh, c2w, width, height, fov_rad, fov_axis="x"):
-    """Ground-truth range along each pixel-centre ray (H, W); inf where nothing is hit."""
+def range_image(mesh, c2w, width, height, fov_rad, fov_axis="x", cull_back_faces=False):
+    """Range along each pixel-centre ray (H, W); inf where nothing is hit (see first_hits for culling)."""
     c2w = np.asarray(c2w, np.float64)
     dirs = camera_ray_directions(width, height, fov_rad, fov_axis) @ c2w[:3, :3].T
-    _, _, _, _, dist = _camera_hits(mesh, c2w[:3, 3], dirs.reshape(-1, 3))
+    _, _, _, _, dist = _camera_hits(mesh, c2w[:3, 3], dirs.reshape(-1, 3), cull_back_faces)
     return dist.reshape(height, width)

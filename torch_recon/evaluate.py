@@ -51,6 +51,9 @@ class EvalSettings:
     crop_max: tuple | None = None
     density_samples: int = 192        # volume rendering samples per ray
     density_min_opacity: float = 0.5  # below this accumulated opacity a density ray counts as a miss
+    cull_back_faces: bool = True      # mesh rays pass through faces seen from behind (a test camera just
+                                      # inside a reconstructed wall, e.g. the paper's orbit 1 cm from the
+                                      # back wall, sees the scene, not the wall's inside); GT stays two-sided
 
     def validate(self):
         if self.miss_depth not in ("zero", "max"):
@@ -63,9 +66,9 @@ class EvalSettings:
 
 # ---------------------------------------------------------------- rendering
 
-def render_mesh_depth(mesh, c2w, width, height, fov_rad, fov_axis="x") -> np.ndarray:
+def render_mesh_depth(mesh, c2w, width, height, fov_rad, fov_axis="x", cull_back_faces=False) -> np.ndarray:
     """Range image (H, W) of a trimesh mesh from a camera (Embree); inf where the ray misses."""
-    return range_image(mesh, c2w, width, height, fov_rad, fov_axis).astype(np.float32)
+    return range_image(mesh, c2w, width, height, fov_rad, fov_axis, cull_back_faces).astype(np.float32)
 
 
 def render_density_depth(density, c2w, width, height, fov_rad, bbox_min, bbox_max, fov_axis="x", n_samples=192,
@@ -265,7 +268,8 @@ def evaluate(dataset, out_dir, mesh=None, density=None, bbox_min=None, bbox_max=
             it = tqdm(it, desc="render test views", unit="view")
         for i in it:
             if mesh is not None:
-                preds[i] = render_mesh_depth(mesh, cams[i], views.width, views.height, views.fov_rad, views.fov_axis)
+                preds[i] = render_mesh_depth(mesh, cams[i], views.width, views.height, views.fov_rad, views.fov_axis,
+                                             settings.cull_back_faces)
             else:
                 preds[i] = render_density_depth(density, cams[i], views.width, views.height, views.fov_rad, bbox_min,
                                                 bbox_max, views.fov_axis, settings.density_samples,

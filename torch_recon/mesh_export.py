@@ -80,7 +80,9 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
         v = np.pad(v, 1, mode="constant", constant_values=min(float(v.min()), level - 1.0))
         origin = lo - spacing
     verts, faces, _, _ = marching_cubes(v, level=level, spacing=tuple(spacing), allow_degenerate=False)
-    mesh = trimesh.Trimesh(verts + origin, faces, process=True)
+    # scikit-image winds its triangles so that their normals point into the larger values (the
+    # occupied side); reverse them: outward normals, positive volume, correct shading and culling
+    mesh = trimesh.Trimesh(verts + origin, np.ascontiguousarray(faces[:, ::-1]), process=True)
     removed = 0
     if min_island_fraction > 0 and len(mesh.faces):
         parts = mesh.split(only_watertight=False)

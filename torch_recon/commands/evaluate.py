@@ -14,6 +14,8 @@ def register(sub) -> None:
     p.add_argument("--samples", type=int, default=100_000, help="surface samples for Chamfer/F-score")
     p.add_argument("--miss-depth", choices=("zero", "max"), default="zero",
                    help="depth a reconstruction ray that hits nothing counts as (default zero)")
+    p.add_argument("--two-sided", action="store_true",
+                   help="count hits on back faces too (default: one-sided, back faces are passed through)")
     p.add_argument("--error-images", type=int, default=1, help="write every n-th view's error PNG (0: none)")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=run)
@@ -27,7 +29,8 @@ def run(args) -> int:
     ds = load_dataset(args.dataset)
     mesh = load_mesh_world(args.reconstruction)
     s = EvalSettings(fscore_threshold_m=args.fscore_threshold, n_surface_samples=args.samples,
-                     miss_depth=args.miss_depth, seed=args.seed, error_images=args.error_images)
+                     miss_depth=args.miss_depth, seed=args.seed, error_images=args.error_images,
+                     cull_back_faces=not args.two_sided)
     rep = evaluate(ds, args.out, mesh=mesh, settings=s, progress=True, extra={"reconstruction": args.reconstruction})
 
     def fmt(v, f):
