@@ -34,7 +34,7 @@ class FastConfig:
 
     coarse_resolution: int = 64       # voxels along the longest bbox side, first level
     resolution: int = 128             # final level (coarse to fine: the coarse result is upsampled)
-    coarse_fraction: float = 0.4      # fraction of the steps spent on the coarse level
+    coarse_fraction: float = 0.0      # fraction of the steps on the coarse level (0: start fine; benchmark)
     bbox_margin_voxels: float = 1.5   # bbox = robust extent of the observed surfaces + this margin
     density_scale: float = 50.0       # sigma = density_scale * softplus(raw), in 1 / m
     raw_free: float = -10.0           # raw density of free space at initialisation (sigma ~ 0.002 / m)
