@@ -49,6 +49,8 @@ def main(argv=None) -> int:
     ap.add_argument("--resolution", type=int, default=64, help="sensor resolution N x N (default 64)")
     ap.add_argument("--spots", type=int, default=16)
     ap.add_argument("--test-views", type=int, default=24, help="test views (dolly + orbit) for evaluation")
+    ap.add_argument("--fit-seconds", type=float, default=120.0,
+                    help="wall-clock budget of the fast reconstruction (default 120 s)")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
 
@@ -72,7 +74,8 @@ def main(argv=None) -> int:
          ["preprocess", str(dataset), "--out", str(out / "measurements.npz")]),
         ("baseline", "torch_recon.commands.baseline", ["baseline", str(dataset), "--out", str(out / "bflidar")]),
         ("fit", "torch_recon.commands.fit", ["fit", str(dataset), "--mode", "fast", "--out", str(out / "fast"),
-                                             "--seed", str(args.seed)]),
+                                             "--seed", str(args.seed), "--max-seconds", str(args.fit_seconds),
+                                             "--no-resume"]),
     ]
     for name, module, cli in stages:
         if not (dataset / "dataset.json").is_file():
