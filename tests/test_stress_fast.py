@@ -10,27 +10,20 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks.stress import run_cases, select
-from benchmarks.stress_cases import KNOWN_ISSUES
+from benchmarks.stress import select
+from stress_fixtures import case_params, check_case, run_by_name
 
 CASES = select(quick=True)
 
 
-def _param(name):
-    if name in KNOWN_ISSUES:
-        return pytest.param(name, marks=pytest.mark.xfail(strict=True, reason=KNOWN_ISSUES[name]))
-    return name
-
-
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
-    return {r.name: r for r in run_cases(CASES, tmp_path_factory.mktemp("stress_fast"), progress=None)}
+    return run_by_name(CASES, tmp_path_factory.mktemp("stress_fast"))
 
 
-@pytest.mark.parametrize("name", [_param(c.name) for c in CASES])
+@pytest.mark.parametrize("name", case_params(CASES))
 def test_stress_case(results, name):
-    r = results[name]
-    assert r.passed, f"{name}: expected {r.expect}, got {r.status}: {r.message[:3000]}"
+    check_case(results, name)
 
 
 def test_photon_sweep_error_falls_smoothly(results):

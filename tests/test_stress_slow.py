@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from benchmarks.stress import run_cases, select
-from benchmarks.stress_cases import KNOWN_ISSUES
+from benchmarks.stress import select
+from stress_fixtures import case_params, check_case, run_by_name
 
 pytestmark = pytest.mark.slow
 _QUICK = {c.name for c in select(quick=True)}
@@ -14,21 +14,14 @@ CASES = [c for c in select(quick=False) if c.name not in _QUICK]
 assert [c.name for c in CASES].index("sim-photons-3-seed7") < [c.name for c in CASES].index("sim-photons-3-seed7-again")
 
 
-def _param(name):
-    if name in KNOWN_ISSUES:
-        return pytest.param(name, marks=pytest.mark.xfail(strict=True, reason=KNOWN_ISSUES[name]))
-    return name
-
-
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
-    return {r.name: r for r in run_cases(CASES, tmp_path_factory.mktemp("stress_slow"), progress=None)}
+    return run_by_name(CASES, tmp_path_factory.mktemp("stress_slow"))
 
 
-@pytest.mark.parametrize("name", [_param(c.name) for c in CASES])
+@pytest.mark.parametrize("name", case_params(CASES))
 def test_stress_case(results, name):
-    r = results[name]
-    assert r.passed, f"{name}: expected {r.expect}, got {r.status}: {r.message[:3000]}"
+    check_case(results, name)
 
 
 def test_relative_depth_error_independent_of_room_size(results):
