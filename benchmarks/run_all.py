@@ -24,6 +24,7 @@ FALLBACK_QUICK = {
     "bench_gating.py": ["--resolution", "128", "--sbr-pixels", "64"],
     "bench_measurements.py": ["--skip-512", "--test-res", "64"],
     "bench_simulate.py": ["--resolutions", "128"],
+    "bench_chain.py": ["--resolutions", "128"],
 }
 
 
