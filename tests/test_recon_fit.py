@@ -114,7 +114,21 @@ def test_ctrl_c_stops_cleanly_with_a_checkpoint(meas, tmp_path):
     assert ck["step"] == 4
 
 
-@pytest.mark.parametrize("case", ["no_shadows", "all_shadow", "spot_on_own_surface"])
+def test_all_shadow_is_refused_before_writing(meas, tmp_path):
+    import copy
+
+    m = copy.deepcopy(meas)
+    for s in m.spots:
+        s.signal[:] = False
+        s.path_length[:] = np.nan
+        s.shadow[:] = ~s.excluded
+    out = tmp_path / "fit"
+    with pytest.raises(ValueError, match="no pixel has a two-bounce return"):
+        fit(m, out=out, config=small_config(steps=5))
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("case", ["no_shadows", "spot_on_own_surface"])
 def test_degenerate_measurements_fit_without_nan(meas, case):
     import copy
 
@@ -122,10 +136,6 @@ def test_degenerate_measurements_fit_without_nan(meas, case):
     for s in m.spots:
         if case == "no_shadows":
             s.shadow[:] = False
-        elif case == "all_shadow":
-            s.signal[:] = False
-            s.path_length[:] = np.nan
-            s.shadow[:] = ~s.excluded
     if case == "spot_on_own_surface":
         # l_k exactly at a pixel's surface point: that pixel's secondary ray has zero length
         c = m.camera_to_world[:3, 3]

@@ -116,11 +116,11 @@ def fit(source, mode: str = "fast", out=None, config: FitConfig | None = None, o
     torch.manual_seed(cfg.seed)
     dev = resolve_device(cfg.device)
     meas, src_hash = load_source(source, cfg.progress)
+    data = build_ray_data(meas).to(dev)     # refuses unusable measurements before anything is written
     out_dir = None
     if out is not None:
         out_dir = Path(out)
         out_dir.mkdir(parents=True, exist_ok=True)
-    data = build_ray_data(meas).to(dev)
     gen = torch.Generator(device=dev)
     gen.manual_seed(cfg.seed)
     meta = {"camera_to_world": np.asarray(meas.camera_to_world), "fov_rad": meas.fov_rad, "fov_axis": meas.fov_axis}

@@ -47,8 +47,8 @@ class RayData:
     def sample(self, n: int, generator: torch.Generator, lit_only: bool = False) -> torch.Tensor:
         """n pair indices drawn uniformly (with replacement) from the lit pairs or all of them.
 
-        With no lit pair at all (everything in shadow) the warm-up draws from all pairs: the
-        distance loss is then zero and only the shadow loss speaks.
+        With no lit pair at all (build_ray_data refuses such data; a hand-made RayData may have it)
+        the warm-up draws from all pairs: the distance loss is then zero and only the shadow loss speaks.
         """
         if self.n_pairs == 0:
             raise ValueError("measurements: no usable (spot, pixel) pair (every pixel excluded or unlabelled)")
@@ -96,6 +96,14 @@ def build_ray_data(meas: Measurements) -> RayData:
         lit.append(sig[use])
         shd.append(sh[use])
     ls = np.stack(ls)
+    if not any(l.any() for l in lit):
+        # Without a single two-bounce return there is no distance to fit and no visible surface to
+        # start from: every shadow says only "something unknown blocks this", so any density that
+        # fills the room fits it. Refuse instead of returning an arbitrary volume.
+        n_shadow = int(sum(s.sum() for s in shd))
+        raise ValueError(f"measurements: no pixel has a two-bounce return in any of the {len(meas.spots)} spot(s) "
+                         f"({n_shadow} shadowed pairs, 0 lit): nothing constrains the geometry. Check the time "
+                         f"gate (gate_max_m), the photon budget and preprocess.shadow_threshold")
     vd = meas.visible_depth
     vd = np.full(h * w, np.nan, np.float32) if vd is None else np.asarray(vd, np.float32).reshape(-1)
     f32 = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
