@@ -17,6 +17,9 @@ PSNR on the dataset's test views (volume-rendered depth; benchmarks/recon_harnes
   dataset (as the paper did; recon_harness.integrate_bins);
 - ambient: Poisson counts (1000 photons for the brightest pixel) plus ambient photons per pixel per bin,
   without and with a 32-bin time gate; preprocessing subtracts each pixel's median (background 'median');
+  plus intensity (RGB) shadows from the gate-off transients summed over time (with and without a
+  subtracted laser-off frame), and every variant's shadow
+  mask agreement with the noise-free lidar masks (benchmarks/ablation_rgb.py);
 - scenes: cave-chair vs low-albedo walls vs a curved back wall.
 Writes benchmarks/results/ablation_<name>.json and .png.
 """
@@ -30,6 +33,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks import ablation_rgb  # noqa: E402
 from benchmarks.common import RESULTS_DIR, machine_info, timer, write_json  # noqa: E402
 from benchmarks.recon_harness import DATA_DIR, Views, ensure_dataset, integrate_bins, preprocess, run_fit  # noqa: E402
 
@@ -110,21 +114,16 @@ class Runner:
         return rows
 
     def ambient(self):
-        levels = [0.0, 1.0] if self.a.quick else [0.0, 0.1, 1.0, 10.0]
-        rows = []
-        for amb in levels:
-            for gate in (0, 32):
-                extra = ["--poisson", "--photons", "1000", "--ambient", f"{amb:g}", "--time-gate", str(gate)]
-                rows.append(self.path_row(f"ambient {amb:g}, gate {gate or 'off'}", self.dataset(extra=extra),
-                                          background="median"))
-                rows[-1].update({"ambient_per_bin": amb, "gate_bins": gate})
-        return rows
+        """Lidar gate off / gate 32 / intensity (RGB) shadows per ambient level (benchmarks/ablation_rgb.py)."""
+        return ablation_rgb.ambient_rows(self, [0.0, 1.0] if self.a.quick else [0.0, 0.1, 1.0, 10.0])
 
     def scenes(self):
         return [self.path_row(s, self.dataset(scene=s)) for s in ("cave-chair", "low-albedo", "curved-wall")]
 
 
 def plot(name, rows, path):
+    if name == "ambient":
+        return ablation_rgb.plot(rows, path)
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -160,8 +159,11 @@ def main(argv=None) -> int:
         for r in rows:
             print(f"  {str(r['level']):>24s} {r['depth_l1_m']:8.4f} {r['depth_psnr_db']:8.2f} {r['wall_seconds']:7.1f}"
                   + (f"  {r['paper_depth_l1_m']}" if name == "spots" else ""))
+        if name == "ambient":
+            ablation_rgb.print_table(rows)
         out = RESULTS_DIR / f"ablation_{name}.json"
-        write_json(out, {"machine": info, "command": "python benchmarks/bench_ablations.py " +
+        write_json(out, {**({"rgb_threshold_table": runner.rgb_threshold_table} if name == "ambient" else {}),
+                         "machine": info, "command": "python benchmarks/bench_ablations.py " +
                          " ".join(argv if argv is not None else sys.argv[1:]), "ablation": name,
                          "settings": {k: v for k, v in vars(a).items() if k != "only"}, "rows": rows,
                          "seconds": t.seconds})
