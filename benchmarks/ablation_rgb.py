@@ -159,11 +159,11 @@ def rgb_row(runner, amb, variant, intens, threshold, ds, meas, prep_s, ref) -> d
 
 def print_table(rows) -> None:
     print(f"  {'ambient':>8s} {'variant':>22s} {'shadow P':>9s} {'shadow R':>9s} {'F1':>6s} {'acc':>6s} "
-          f"{'L1 m':>8s} {'PSNR dB':>8s}")
+          f"{'L1 m':>8s} {'PSNR dB':>8s} {'steps':>6s}")
     for r in rows:
         print(f"  {r['ambient_per_bin']:8g} {r['variant']:>22s} {_f(r['shadow_precision'], '9.3f')} "
               f"{_f(r['shadow_recall'], '9.3f')} {_f(r['shadow_f1'], '6.3f')} {_f(r['accuracy'], '6.3f')} "
-              f"{r['depth_l1_m']:8.4f} {r['depth_psnr_db']:8.2f}")
+              f"{r['depth_l1_m']:8.4f} {r['depth_psnr_db']:8.2f} {r.get('steps', 0):6d}")
 
 
 def plot(rows, path) -> None:

@@ -47,6 +47,8 @@ def parse(argv=None):
     ap.add_argument("--only", help=f"comma-separated ablations of {list(ABLATIONS)}")
     ap.add_argument("--res", type=int, help="sensor resolution of the base dataset (default 64)")
     ap.add_argument("--budget", type=float, help="fast-mode training budget per row, s (quick 10, full 60)")
+    ap.add_argument("--steps", type=int, help="fixed training steps per row (no time budget unless --budget): "
+                    "rows stay comparable on a machine shared with other jobs")
     ap.add_argument("--grid", type=int, default=96, help="fast-mode grid resolution")
     ap.add_argument("--test-views", type=int, help="test views (default 24)")
     ap.add_argument("--threads", type=int, default=2)
@@ -56,7 +58,9 @@ def parse(argv=None):
     if bad:
         ap.error(f"unknown ablation(s) {sorted(bad)}; choose from {list(ABLATIONS)}")
     a.res = a.res or 64
-    a.budget = a.budget or (10.0 if a.quick else 60.0)
+    if a.steps is not None and a.steps < 1:
+        ap.error(f"--steps: expected a positive step count, got {a.steps}")
+    a.budget = a.budget or (None if a.steps else 10.0 if a.quick else 60.0)
     a.test_views = a.test_views or 24
     a.view_res = 64
     return a
@@ -70,7 +74,8 @@ class Runner:
         return ensure_dataset(scene, res or self.a.res, self.a.test_views, self.a.view_res, extra)[0]
 
     def fit_row(self, level, meas, views, prep_s, **extra):
-        r = run_fit(meas, views, "fast", self.a.budget, self.a.grid, threads=self.a.threads, prep_seconds=prep_s)
+        r = run_fit(meas, views, "fast", self.a.budget, self.a.grid, threads=self.a.threads, prep_seconds=prep_s,
+                    steps=self.a.steps)
         row = {"level": level, "depth_l1_m": r["depth_l1_m"], "depth_psnr_db": r["depth_psnr_db"],
                "view_l1_median_m": r.get("view_l1_median_m"),
                "wall_seconds": r["wall_seconds"], "preprocess_seconds": prep_s, "steps": r["steps"],
@@ -149,7 +154,9 @@ def main(argv=None) -> int:
     a = parse(argv)
     info = machine_info()
     print(f"machine: {info['cpu']}, {info['cpu_affinity']} cores usable, torch {info.get('torch')} "
-          f"({a.threads} threads); fast mode grid {a.grid}, {a.budget:g} s per row, base {a.res} px")
+          f"({a.threads} threads); fast mode grid {a.grid}, " +
+          (f"{a.steps} steps" if a.steps else "") + (" and " if a.steps and a.budget else "") +
+          (f"{a.budget:g} s" if a.budget else "") + f" per row, base {a.res} px")
     runner = Runner(a)
     for name in a.only:
         print(f"\nablation: {name}", flush=True)
