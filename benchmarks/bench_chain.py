@@ -20,12 +20,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.common import machine_info, write_json  # noqa: E402
+from benchmarks.common import machine_info, machine_line, write_json  # noqa: E402
 
 PAPER = {"depth_l1_m": 0.0862, "depth_psnr_db": 26.58}
 
 
-def _stage(cmd: list[str]) -> tuple[float, float]:
+def run_stage(cmd: list[str]) -> tuple[float, float]:
     """Run one stage; (wall seconds, peak RSS of that process in MiB)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     t0 = time.perf_counter()
@@ -50,19 +50,19 @@ def main(argv=None) -> int:
     rows = []
     for res in args.resolutions:
         d, f, e = work / f"sim{res}", work / f"fit{res}", work / f"eval{res}"
-        t_sim, _ = _stage([py, "pipeline/simulate.py", "--example", "cave-chair", "--resolution", str(res),
+        t_sim, _ = run_stage([py, "pipeline/simulate.py", "--example", "cave-chair", "--resolution", str(res),
                            "--out", str(d), "--seed", str(args.seed)])
-        t_fit, rss_fit = _stage([py, "-m", "torch_recon", "fit", str(d), "--mode", "fast", "--out", str(f),
+        t_fit, rss_fit = run_stage([py, "-m", "torch_recon", "fit", str(d), "--mode", "fast", "--out", str(f),
                                  "--max-seconds", str(args.fit_seconds), "--no-resume", "--quiet",
                                  "--seed", str(args.seed)])
-        t_eval, _ = _stage([py, "-m", "torch_recon", "evaluate", str(f / "mesh.ply"), "--dataset", str(d),
+        t_eval, _ = run_stage([py, "-m", "torch_recon", "evaluate", str(f / "mesh.ply"), "--dataset", str(d),
                             "--out", str(e)])
         rep = json.loads((e / "report.json").read_text())
         rows.append({"resolution": res, "simulate_s": t_sim, "fit_s": t_fit, "fit_peak_rss_mib_upper": rss_fit,
                      "evaluate_s": t_eval, "n_test_views": rep["n_test_views"],
                      **{k: rep[k] for k in ("depth_l1_m", "depth_psnr_db", "chamfer_m", "fscore")}})
     info = machine_info()
-    print("machine:", json.dumps(info))
+    print(machine_line(info))
     print(f"{'res':>5} {'simulate s':>10} {'fit s':>7} {'fit RSS MiB':>11} {'L1 m':>7} {'PSNR dB':>8} "
           f"{'Chamfer m':>9} {'F@5cm':>6}")
     for r in rows:

@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import RESULTS_DIR, machine_info, peak_rss_mb, timer, write_json  # noqa: E402
+from benchmarks.common import RESULTS_DIR, machine_info, machine_line, peak_rss_mb, timer, write_json  # noqa: E402
 from pipeline.sensor_model import apply_sensor  # noqa: E402
 from pipeline.transient_binning import bin_two_bounce, expected_return_path  # noqa: E402
 from torch_recon.analytic import pulse_bin_weights  # noqa: E402
@@ -200,7 +200,7 @@ def main(argv=None):
     ap.add_argument("--out", default=str(RESULTS_DIR), help="results folder")
     args = ap.parse_args(argv)
     info = machine_info()
-    print("machine:", ", ".join(f"{k}={v}" for k, v in info.items()))
+    print(machine_line(info))
     rows, ref = sbr_curve(args.sbr_pixels)
     print(f"\nSBR gain of the time gate ({ref['pixels']} pixels, {ref['photons_per_pixel']:g} signal photons per lit "
           f"pixel, {ref['background_per_bin']:g} background photons per bin, Poisson)")

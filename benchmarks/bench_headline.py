@@ -26,7 +26,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.common import RESULTS_DIR, machine_info, peak_rss_mb, timer, write_json  # noqa: E402
+from benchmarks.common import RESULTS_DIR, machine_info, machine_line, peak_rss_mb, timer, write_json  # noqa: E402
 from benchmarks.recon_harness import (PAPER_L1_M, PAPER_PSNR_DB, Views, ensure_dataset, pareto,  # noqa: E402
                                       preprocess, run_bflidar, run_fit, time_to_reach)
 
@@ -175,8 +175,7 @@ def plot(runs, path):
 def main(argv=None) -> int:
     a = parse(argv)
     info = machine_info()
-    print(f"machine: {info['cpu']}, {info['cpu_affinity']} cores usable, torch {info.get('torch')} "
-          f"({a.threads} threads)")
+    print(machine_line(info), f"(fits use {a.threads} threads)")
     runs = []
     with timer() as t:
         for scene in a.scenes:

@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import RESULTS_DIR, machine_info, peak_rss_mb, write_json  # noqa: E402
+from benchmarks.common import RESULTS_DIR, machine_info, machine_line, peak_rss_mb, write_json  # noqa: E402
 
 PAPER_L1_M, PAPER_PSNR_DB = 0.0862, 26.58
 
@@ -184,7 +184,7 @@ def main():
         common = ["--threads", str(args.threads), "--dolly", "2", "--orbit", "2", "--view-res", "32",
                   "--workdir", args.workdir]
     info = machine_info()
-    print("machine:", json.dumps(info))
+    print(machine_line(info))
     runs = []
     budget128 = 20 if args.quick else 300
     for res in args.res:

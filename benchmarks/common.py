@@ -41,7 +41,9 @@ def machine_info() -> dict:
     info = {"platform": platform.platform(), "python": platform.python_version(), "cpu": cpu,
             "cpu_count": os.cpu_count(),
             "cpu_affinity": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
-            "numpy": np.__version__}
+            "numpy": np.__version__,
+            # other work on the machine inflates wall times: the 1-minute load average says how much
+            "loadavg_1min": os.getloadavg()[0] if hasattr(os, "getloadavg") else None}
     try:
         import torch
         info["torch"] = torch.__version__
@@ -49,6 +51,13 @@ def machine_info() -> dict:
     except ImportError:
         info["torch"] = None
     return info
+
+
+def machine_line(info: dict | None = None) -> str:
+    """One printable line of machine_info(): what every benchmark prints before its table."""
+    info = info or machine_info()
+    return (f"machine: {info['cpu']}, {info['cpu_affinity']} cores usable, torch {info.get('torch')} "
+            f"({info.get('torch_threads')} threads), numpy {info['numpy']}, load average {info['loadavg_1min']:.2f}")
 
 
 def peak_rss_mb() -> float:

@@ -85,12 +85,14 @@ class Views:
 
     def mesh_metrics(self, mesh) -> dict:
         """Metrics of a mesh (None: no surface, every ray misses)."""
-        from torch_recon.evaluate import depth_metrics, render_mesh_depth
+        from torch_recon.evaluate import EvalSettings, depth_metrics, render_mesh_depth
         s = self.spec
+        cull = EvalSettings().cull_back_faces       # the evaluator's convention (one-sided, outward normals)
         if mesh is None or len(mesh.faces) == 0:
             pred = np.full_like(self.gt, np.inf)
         else:
-            pred = np.stack([render_mesh_depth(mesh, c, s.width, s.height, s.fov_rad, s.fov_axis) for c in self.cams])
+            pred = np.stack([render_mesh_depth(mesh, c, s.width, s.height, s.fov_rad, s.fov_axis, cull_back_faces=cull)
+                             for c in self.cams])
         out = _keep(depth_metrics(pred, self.gt))
         ok = np.isfinite(self.gt)
         err = np.abs(np.where(np.isfinite(pred), pred, 0.0) - np.where(ok, self.gt, 0.0))   # misses count as depth 0

@@ -27,7 +27,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
-from benchmarks.common import REPO_ROOT, RESULTS_DIR, machine_info, write_json  # noqa: E402
+from benchmarks.common import REPO_ROOT, RESULTS_DIR, machine_info, machine_line, write_json  # noqa: E402
 from benchmarks.stress_cases import KNOWN_ISSUES, all_cases  # noqa: E402
 from benchmarks.stress_checks import CheckFailed, NonFinite  # noqa: E402
 
@@ -180,7 +180,7 @@ def main(argv=None) -> int:
             print(f"{c.name:34s} {c.kind:5s} expect {c.expect:7s} {'quick' if c.quick else 'slow '}  {c.note}")
         return 0
     info = machine_info()
-    print(f"machine: {info['cpu']} ({info['cpu_affinity']} cores usable), torch {info.get('torch')}")
+    print(machine_line(info))
     print(f"stress: {len(cases)} cases{' (quick subset)' if args.quick else ''}")
     t0 = time.perf_counter()
     results = run_cases(cases, Path(args.work) if args.work else None)
