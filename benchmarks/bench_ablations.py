@@ -34,7 +34,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import ablation_rgb  # noqa: E402
-from benchmarks.common import RESULTS_DIR, machine_info, timer, write_json  # noqa: E402
+from benchmarks.common import RESULTS_DIR, machine_info, machine_line, timer, write_json  # noqa: E402
 from benchmarks.recon_harness import DATA_DIR, Views, ensure_dataset, integrate_bins, preprocess, run_fit  # noqa: E402
 
 PAPER_SPOTS = {16: 0.0862, 8: 0.0912, 4: 0.1347, 2: 0.2147}
@@ -74,12 +74,18 @@ class Runner:
         return ensure_dataset(scene, res or self.a.res, self.a.test_views, self.a.view_res, extra)[0]
 
     def fit_row(self, level, meas, views, prep_s, **extra):
-        r = run_fit(meas, views, "fast", self.a.budget, self.a.grid, threads=self.a.threads, prep_seconds=prep_s,
-                    steps=self.a.steps)
+        signal = float(sum(s.signal.mean() for s in meas.spots) / len(meas.spots))
+        try:
+            r = run_fit(meas, views, "fast", self.a.budget, self.a.grid, threads=self.a.threads,
+                        prep_seconds=prep_s, steps=self.a.steps)
+        except ValueError as exc:       # e.g. a threshold that marks every pixel shadow: fit refuses it
+            print(f"    {str(level):>24s}  refused: {exc}", flush=True)
+            return {"level": level, "depth_l1_m": None, "depth_psnr_db": None, "refused": str(exc),
+                    "preprocess_seconds": prep_s, "signal_fraction": signal, **extra}
         row = {"level": level, "depth_l1_m": r["depth_l1_m"], "depth_psnr_db": r["depth_psnr_db"],
                "view_l1_median_m": r.get("view_l1_median_m"),
                "wall_seconds": r["wall_seconds"], "preprocess_seconds": prep_s, "steps": r["steps"],
-               "signal_fraction": float(sum(s.signal.mean() for s in meas.spots) / len(meas.spots)), **extra}
+               "signal_fraction": signal, **extra}
         print(f"    {str(level):>24s}  L1 {row['depth_l1_m']:.4f} m  PSNR {row['depth_psnr_db']:5.2f} dB  "
               f"wall {row['wall_seconds']:5.1f} s  signal {row['signal_fraction']:.2f}", flush=True)
         return row
@@ -134,7 +140,9 @@ def plot(name, rows, path):
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(6.5, 4))
     xs = list(range(len(rows)))
-    ax.plot(xs, [r["depth_l1_m"] for r in rows], "o-", label="fast mode (this machine)")
+    nan = float("nan")      # refused rows (no result) leave a gap
+    ax.plot(xs, [nan if r["depth_l1_m"] is None else r["depth_l1_m"] for r in rows], "o-",
+            label="fast mode (this machine)")
     if name == "spots":
         ax.plot(xs, [r["paper_depth_l1_m"] for r in rows], "s--", color="gray", label="paper PlatoNeRF")
     ax.set_xticks(xs, [str(r["level"]) for r in rows], rotation=30 if name == "ambient" else 0, fontsize=8)
@@ -142,7 +150,8 @@ def plot(name, rows, path):
     ax.set_title(f"ablation: {name}")
     ax.grid(alpha=0.3)
     ax2 = ax.twinx()
-    ax2.plot(xs, [r["depth_psnr_db"] for r in rows], "^:", color="tab:orange", label="PSNR (dB)")
+    ax2.plot(xs, [nan if r["depth_psnr_db"] is None else r["depth_psnr_db"] for r in rows], "^:",
+             color="tab:orange", label="PSNR (dB)")
     ax2.set_ylabel("PSNR (dB)", color="tab:orange")
     ax.legend(fontsize=8, loc="upper left")
     fig.tight_layout()
@@ -153,8 +162,7 @@ def plot(name, rows, path):
 def main(argv=None) -> int:
     a = parse(argv)
     info = machine_info()
-    print(f"machine: {info['cpu']}, {info['cpu_affinity']} cores usable, torch {info.get('torch')} "
-          f"({a.threads} threads); fast mode grid {a.grid}, " +
+    print(machine_line(info) + f"; fits use {a.threads} threads, fast mode grid {a.grid}, " +
           (f"{a.steps} steps" if a.steps else "") + (" and " if a.steps and a.budget else "") +
           (f"{a.budget:g} s" if a.budget else "") + f" per row, base {a.res} px")
     runner = Runner(a)
@@ -164,6 +172,9 @@ def main(argv=None) -> int:
             rows = getattr(runner, name)()
         print(f"  {'level':>24s} {'L1 m':>8s} {'PSNR dB':>8s} {'wall s':>7s}" + ("  paper L1 m" if name == "spots" else ""))
         for r in rows:
+            if r.get("refused"):
+                print(f"  {str(r['level']):>24s} refused by fit (no two-bounce return left)")
+                continue
             print(f"  {str(r['level']):>24s} {r['depth_l1_m']:8.4f} {r['depth_psnr_db']:8.2f} {r['wall_seconds']:7.1f}"
                   + (f"  {r['paper_depth_l1_m']}" if name == "spots" else ""))
         if name == "ambient":
