@@ -107,12 +107,14 @@ def _split_faces(centroids, idx, max_faces):
     return _split_faces(centroids, order[:half], max_faces) + _split_faces(centroids, order[half:], max_faces)
 
 
-def uv_unwrap(mesh, block_faces: int = 5000):
+def uv_unwrap(mesh, block_faces: int = 2000):
     """xatlas parametrisation; returns a new trimesh with per-vertex UVs (vertices split on seams).
 
     xatlas' time grows faster than linearly with the face count (about 10 s for 40k faces
     and minutes for 200k here), so large meshes are cut into spatial blocks of at most
     `block_faces` faces, each unwrapped on its own and packed into a grid of UV tiles.
+    Measured on the 367k-face cave-chair fit (128 px, 2-core EPYC, one process, same load):
+    blocks of 10000 / 5000 / 2000 faces took 54 / 35 / 24 s.
     """
     import trimesh
     import xatlas
