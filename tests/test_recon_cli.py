@@ -57,6 +57,19 @@ def test_fit_cli_writes_mesh_volume_and_report(meas_file, tmp_path, run_cli):
     assert mesh.bounds[1][1] > 3.0          # reaches the back wall at y = 3.3
 
 
+def test_fit_cli_no_uv_skips_the_atlas(meas_file, tmp_path, run_cli):
+    out = tmp_path / "fit"
+    p = run_cli(meas_file, "--out", out, "--steps", "2", "--set", "fast.resolution=24", "--threads", "1", "--quiet",
+                "--no-uv")
+    assert p.returncode == 0, p.stderr
+    side = json.loads((out / "mesh.mesh.json").read_text())
+    assert side["mesh"]["uv"] is None
+    with_uv = tmp_path / "fit_uv"
+    assert run_cli(meas_file, "--out", with_uv, "--steps", "2", "--set", "fast.resolution=24", "--threads", "1",
+                   "--quiet").returncode == 0
+    assert json.loads((with_uv / "mesh.mesh.json").read_text())["mesh"]["uv"] == "xatlas"
+
+
 def test_fit_cli_errors_are_one_line(meas_file, tmp_path, run_cli):
     p = run_cli(tmp_path / "missing", "--out", tmp_path / "o")
     assert p.returncode == 2 and "no such dataset" in p.stderr and "Traceback" not in p.stderr

@@ -22,6 +22,9 @@ def register(sub) -> None:
     p.add_argument("--threads", type=int, help="torch CPU threads (default 2)")
     p.add_argument("--no-resume", action="store_true", help="ignore an existing checkpoint in --out")
     p.add_argument("--no-mesh", action="store_true", help="skip the mesh export (volume.npz only)")
+    p.add_argument("--no-uv", action="store_true",
+                   help="skip the xatlas UV atlas (about a third of a 128 px fit's wall time; "
+                        "only texture painting or baking in Blender needs it)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -53,7 +56,7 @@ def run(args) -> int:
     if args.quiet:
         sets.append("progress=false")
     cfg = override(cfg, sets)
-    r = fit(args.source, mode=args.mode, out=args.out, config=cfg, export=not args.no_mesh)
+    r = fit(args.source, mode=args.mode, out=args.out, config=cfg, export=not args.no_mesh, uv=not args.no_uv)
     t = r.train
     print(f"{r.mode}: {t.steps_done} steps ({t.stopped}), setup {r.setup_seconds:.1f} s, "
           f"training {t.train_seconds:.1f} s, total {r.total_seconds:.1f} s"

@@ -106,7 +106,7 @@ def load_source(source, progress: bool = True):
 
 
 def fit(source, mode: str = "fast", out=None, config: FitConfig | None = None, on_eval=None,
-        export: bool = True, fault_hook=None, stop_after: int | None = None) -> FitResult:
+        export: bool = True, fault_hook=None, stop_after: int | None = None, uv: bool = True) -> FitResult:
     """Fit a density field to two-bounce measurements and (with `out` and `export`) write the mesh."""
     t_start = time.perf_counter()
     cfg = config or FitConfig(mode=mode)
@@ -145,7 +145,7 @@ def fit(source, mode: str = "fast", out=None, config: FitConfig | None = None, o
 
             try:
                 result.mesh_files, result.mesh = export_volume(vol, lo, hi, cfg.mesh_level, out_dir / "mesh",
-                                                               result.metadata)
+                                                               result.metadata, uv=uv)
             except MeshExportError as exc:      # e.g. an early stop with nothing occupied yet
                 result.metadata["mesh_error"] = str(exc)
                 warnings.warn(f"no mesh written: {exc}", RuntimeWarning, stacklevel=2)
@@ -158,7 +158,7 @@ def fit(source, mode: str = "fast", out=None, config: FitConfig | None = None, o
     return result
 
 
-def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: dict):
+def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: dict, uv: bool = True):
     """Marching cubes + cleanup + UVs -> .glb (+ .ply, .obj) through the shared mesh exporter.
 
     Our values sit at voxel centres; the exporter's grid points span its bbox corner to corner, so
@@ -169,7 +169,7 @@ def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: d
     lo, hi = np.asarray(bbox_min, np.float64), np.asarray(bbox_max, np.float64)
     half = 0.5 * (hi - lo) / np.asarray(np.shape(volume), np.float64)
     res = export_mesh(volume, lo + half, hi - half, level, Path(out_path).with_suffix(".glb"), metadata,
-                      extra_formats=(".ply", ".obj"))
+                      extra_formats=(".ply", ".obj"), uv=uv)
     files = {p.suffix.lstrip("."): p for p in res.paths}
     files["sidecar"] = res.sidecar
     return files, res.mesh
