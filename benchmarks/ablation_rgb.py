@@ -59,16 +59,6 @@ def agreement(meas, ref) -> dict:
             for k, v in mask_agreement(sh, ref[0], ref[1]).items()}
 
 
-def fit_or_fail(runner, level, meas, ds, prep_s, **extra):
-    """runner.fit_row, or a row saying why the fit refused the measurements (e.g. no lit pair left)."""
-    try:
-        return runner.fit_row(level, meas, Views(ds), prep_s, **extra)
-    except ValueError as exc:
-        print(f"    {level:>24s}  fit refused: {exc}", flush=True)
-        return {"level": level, "depth_l1_m": float("nan"), "depth_psnr_db": float("nan"), "wall_seconds": 0.0,
-                "preprocess_seconds": prep_s, "error": str(exc), **extra}
-
-
 def _f(v, spec):
     return format(v, spec) if v is not None else format("-", spec.rstrip("f").split(".")[0] + "s")
 
@@ -108,14 +98,14 @@ def ambient_rows(runner, levels) -> list:
             ds, meas, prep_s = preprocess(runner.dataset(extra=extra(amb, gate)), background="median")
             off = (ds, meas, prep_s) if gate == 0 else off
             agr = agreement(meas, ref)
-            rows.append(fit_or_fail(runner, f"ambient {amb:g}, gate {gate or 'off'}", meas, ds, prep_s,
-                                    variant="lidar gate off" if gate == 0 else f"lidar gate {gate}",
-                                    ambient_per_bin=amb, gate_bins=gate, **agr))
+            rows.append(runner.fit_row(f"ambient {amb:g}, gate {gate or 'off'}", meas, Views(ds), prep_s,
+                                       variant="lidar gate off" if gate == 0 else f"lidar gate {gate}",
+                                       ambient_per_bin=amb, gate_bins=gate, **agr))
         ds, meas, prep_s = off
         control = apply_intensity_shadows(meas, np.zeros((len(meas.spots), meas.height, meas.width), bool))
-        rows.append(fit_or_fail(runner, f"ambient {amb:g}, no shadows", control, ds, prep_s,
-                                variant="no shadows (control)", ambient_per_bin=amb, gate_bins=0,
-                                **agreement(control, ref)))
+        rows.append(runner.fit_row(f"ambient {amb:g}, no shadows", control, Views(ds), prep_s,
+                                   variant="no shadows (control)", ambient_per_bin=amb, gate_bins=0,
+                                   **agreement(control, ref)))
         intens = spot_intensities(ds, meas)
         rows.append(rgb_row(runner, amb, "intensity shadows", intens, threshold, ds, meas, prep_s, ref))
         frame = laser_off_frame(ds, seed=LASER_OFF_SEED)
@@ -151,10 +141,10 @@ def rgb_row(runner, amb, variant, intens, threshold, ds, meas, prep_s, ref) -> d
     oracle = max(at_level, key=lambda r: -1.0 if r["shadow_f1"] is None else r["shadow_f1"])
     print(f"    {variant} at ambient {amb:g}: threshold {threshold:g}, F1 {_f(agr['shadow_f1'], '.3f')}; "
           f"best possible F1 {_f(oracle['shadow_f1'], '.3f')} (threshold {oracle['threshold']:g})", flush=True)
-    return fit_or_fail(runner, f"ambient {amb:g}, {variant}", rgb, ds, prep_s, variant=variant,
-                       ambient_per_bin=amb, gate_bins=0, ratio_threshold=threshold,
-                       intensity_unlabelled_pixels=int((~labelled).sum()),
-                       oracle_ratio_threshold=oracle["threshold"], oracle_shadow_f1=oracle["shadow_f1"], **agr)
+    return runner.fit_row(f"ambient {amb:g}, {variant}", rgb, Views(ds), prep_s, variant=variant,
+                          ambient_per_bin=amb, gate_bins=0, ratio_threshold=threshold,
+                          intensity_unlabelled_pixels=int((~labelled).sum()),
+                          oracle_ratio_threshold=oracle["threshold"], oracle_shadow_f1=oracle["shadow_f1"], **agr)
 
 
 def print_table(rows) -> None:
@@ -163,7 +153,7 @@ def print_table(rows) -> None:
     for r in rows:
         print(f"  {r['ambient_per_bin']:8g} {r['variant']:>22s} {_f(r['shadow_precision'], '9.3f')} "
               f"{_f(r['shadow_recall'], '9.3f')} {_f(r['shadow_f1'], '6.3f')} {_f(r['accuracy'], '6.3f')} "
-              f"{r['depth_l1_m']:8.4f} {r['depth_psnr_db']:8.2f} {r.get('steps', 0):6d}")
+              f"{_f(r['depth_l1_m'], '8.4f')} {_f(r['depth_psnr_db'], '8.2f')} {r.get('steps', 0):6d}")
 
 
 def plot(rows, path) -> None:
@@ -178,7 +168,7 @@ def plot(rows, path) -> None:
                            ("intensity - laser-off", "v-."), ("no shadows (control)", "x:")):
         rs = [r for r in rows if r["variant"] == variant]
         x = [xs[r["ambient_per_bin"]] for r in rs]
-        ax.plot(x, [r["depth_l1_m"] for r in rs], style, label=variant)
+        ax.plot(x, [np.nan if r["depth_l1_m"] is None else r["depth_l1_m"] for r in rs], style, label=variant)
         bx.plot(x, [np.nan if r["shadow_f1"] is None else r["shadow_f1"] for r in rs], style, label=variant)
     for a, lab in ((ax, "test-view depth L1 (m)"), (bx, "shadow F1 vs noise-free lidar")):
         a.set_xticks(range(len(levels)), [f"{v:g}" for v in levels])

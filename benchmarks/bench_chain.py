@@ -38,6 +38,19 @@ def run_stage(cmd: list[str]) -> tuple[float, float]:
     return dt, max(after, before) / 1024.0
 
 
+def fit_and_evaluate(dataset, fit_dir, eval_dir, fit_args=()) -> dict:
+    """`torch_recon fit DATASET --out FIT --no-resume --quiet FIT_ARGS`, then `torch_recon evaluate` of its
+    mesh: wall times, the fit's peak RSS (upper bound, see run_stage) and both reports."""
+    py = sys.executable
+    t_fit, rss = run_stage([py, "-m", "torch_recon", "fit", str(dataset), "--out", str(fit_dir), "--no-resume",
+                            "--quiet", *map(str, fit_args)])
+    t_eval, _ = run_stage([py, "-m", "torch_recon", "evaluate", str(Path(fit_dir) / "mesh.ply"), "--dataset",
+                           str(dataset), "--out", str(eval_dir)])
+    return {"fit_s": t_fit, "fit_peak_rss_mib_upper": rss, "evaluate_s": t_eval,
+            "fit": json.loads((Path(fit_dir) / "fit.json").read_text()),
+            "eval": json.loads((Path(eval_dir) / "report.json").read_text())}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--resolutions", type=int, nargs="+", default=[128, 512])
@@ -51,15 +64,12 @@ def main(argv=None) -> int:
     for res in args.resolutions:
         d, f, e = work / f"sim{res}", work / f"fit{res}", work / f"eval{res}"
         t_sim, _ = run_stage([py, "pipeline/simulate.py", "--example", "cave-chair", "--resolution", str(res),
-                           "--out", str(d), "--seed", str(args.seed)])
-        t_fit, rss_fit = run_stage([py, "-m", "torch_recon", "fit", str(d), "--mode", "fast", "--out", str(f),
-                                 "--max-seconds", str(args.fit_seconds), "--no-resume", "--quiet",
-                                 "--seed", str(args.seed)])
-        t_eval, _ = run_stage([py, "-m", "torch_recon", "evaluate", str(f / "mesh.ply"), "--dataset", str(d),
-                            "--out", str(e)])
-        rep = json.loads((e / "report.json").read_text())
-        rows.append({"resolution": res, "simulate_s": t_sim, "fit_s": t_fit, "fit_peak_rss_mib_upper": rss_fit,
-                     "evaluate_s": t_eval, "n_test_views": rep["n_test_views"],
+                              "--out", str(d), "--seed", str(args.seed)])
+        r = fit_and_evaluate(d, f, e, ["--mode", "fast", "--max-seconds", args.fit_seconds, "--seed", args.seed])
+        rep = r["eval"]
+        rows.append({"resolution": res, "simulate_s": t_sim, "fit_s": r["fit_s"],
+                     "fit_peak_rss_mib_upper": r["fit_peak_rss_mib_upper"],
+                     "evaluate_s": r["evaluate_s"], "n_test_views": rep["n_test_views"],
                      **{k: rep[k] for k in ("depth_l1_m", "depth_psnr_db", "chamfer_m", "fscore")}})
     info = machine_info()
     print(machine_line(info))

@@ -14,7 +14,6 @@ the load average and a table; writes benchmarks/results/settings_<key>.json and 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 from pathlib import Path
@@ -22,7 +21,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.bench_chain import run_stage  # noqa: E402
+from benchmarks.bench_chain import fit_and_evaluate, run_stage  # noqa: E402
+from torch_recon.dataset import MANIFEST_NAME  # noqa: E402
 from benchmarks.common import RESULTS_DIR, machine_info, machine_line, write_json  # noqa: E402
 
 DEFAULT_DATASET = RESULTS_DIR / "data" / "chain" / "sim128"
@@ -40,30 +40,27 @@ def main(argv=None) -> int:
     ap.add_argument("--work", default=str(RESULTS_DIR / "data" / "settings"))
     args = ap.parse_args(argv)
     py, ds = sys.executable, Path(args.dataset)
-    if not (ds / "manifest.json").exists():
+    if not (ds / MANIFEST_NAME).exists():
         if ds != DEFAULT_DATASET:
-            raise SystemExit(f"--dataset {ds}: no manifest.json there (expected a dataset directory)")
+            raise SystemExit(f"--dataset {ds}: no {MANIFEST_NAME} there (expected a dataset directory)")
         run_stage([py, "pipeline/simulate.py", "--example", "cave-chair", "--resolution", "128", "--out", str(ds)])
     rows = []
     load_before = os.getloadavg()[0]
     for v in args.values:
         tag = f"{args.key}={v}".replace("/", "_")
         fit_dir, eval_dir = Path(args.work) / tag, Path(args.work) / f"{tag}-eval"
-        cmd = [py, "-m", "torch_recon", "fit", str(ds), "--out", str(fit_dir), "--no-resume", "--quiet",
-               "--max-seconds", str(args.max_seconds), "--set", f"{args.key}={v}"]
+        fit_args = ["--max-seconds", args.max_seconds, "--set", f"{args.key}={v}"]
         for e in args.extra:
-            cmd += ["--set", e]
+            fit_args += ["--set", e]
         if args.steps is not None:
-            cmd += ["--steps", str(args.steps)]
-        t_fit, rss = run_stage(cmd)
-        t_eval, _ = run_stage([py, "-m", "torch_recon", "evaluate", str(fit_dir / "mesh.ply"), "--dataset", str(ds),
-                               "--out", str(eval_dir)])
-        fit_rep = json.loads((fit_dir / "fit.json").read_text())
-        rep = json.loads((eval_dir / "report.json").read_text())
-        rows.append({"value": v, "fit_s": t_fit, "train_s": fit_rep["train_seconds"], "steps": fit_rep["steps"],
-                     "stopped": fit_rep["stopped"], "peak_rss_mib_upper": rss, **{k: rep.get(k) for k in METRICS}})
+            fit_args += ["--steps", args.steps]
+        r = fit_and_evaluate(ds, fit_dir, eval_dir, fit_args)
+        fit_rep, rep = r["fit"], r["eval"]
+        rows.append({"value": v, "fit_s": r["fit_s"], "train_s": fit_rep["train_seconds"], "steps": fit_rep["steps"],
+                     "stopped": fit_rep["stopped"], "peak_rss_mib_upper": r["fit_peak_rss_mib_upper"],
+                     **{k: rep.get(k) for k in METRICS}})
         r = rows[-1]
-        print(f"  {args.key}={v:>8s}  fit {t_fit:6.1f} s ({r['steps']} steps, {r['stopped']})  L1 {r['depth_l1_m']:.4f} m"
+        print(f"  {args.key}={v:>8s}  fit {r['fit_s']:6.1f} s ({r['steps']} steps, {r['stopped']})  L1 {r['depth_l1_m']:.4f} m"
               f"  PSNR {r['depth_psnr_db']:.2f} dB  Chamfer {r['chamfer_m']:.4f} m  misses {r['n_reconstruction_misses']}",
               flush=True)
     info = {**machine_info(), "loadavg_before": load_before, "loadavg_after": os.getloadavg()[0]}
