@@ -18,8 +18,8 @@ PSNR on the dataset's test views (volume-rendered depth; benchmarks/recon_harnes
 - ambient: Poisson counts (1000 photons for the brightest pixel) plus ambient photons per pixel per bin,
   without and with a 32-bin time gate; preprocessing subtracts each pixel's median (background 'median');
   plus intensity (RGB) shadows from the gate-off transients summed over time (with and without a
-  subtracted laser-off frame), and every variant's shadow
-  mask agreement with the noise-free lidar masks (benchmarks/ablation_rgb.py);
+  subtracted laser-off frame), and every variant's shadow-mask agreement with the noise-free lidar
+  masks (benchmarks/ablation_rgb.py);
 - scenes: cave-chair vs low-albedo walls vs a curved back wall.
 Writes benchmarks/results/ablation_<name>.json and .png.
 """
@@ -35,6 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import ablation_rgb  # noqa: E402
 from benchmarks.common import RESULTS_DIR, machine_info, machine_line, timer, write_json  # noqa: E402
+from torch_recon.recon import UnconstrainedMeasurementsError  # noqa: E402
 from benchmarks.recon_harness import DATA_DIR, Views, ensure_dataset, integrate_bins, preprocess, run_fit  # noqa: E402
 
 PAPER_SPOTS = {16: 0.0862, 8: 0.0912, 4: 0.1347, 2: 0.2147}
@@ -78,7 +79,7 @@ class Runner:
         try:
             r = run_fit(meas, views, "fast", self.a.budget, self.a.grid, threads=self.a.threads,
                         prep_seconds=prep_s, steps=self.a.steps)
-        except ValueError as exc:       # e.g. a threshold that marks every pixel shadow: fit refuses it
+        except UnconstrainedMeasurementsError as exc:   # e.g. a threshold that marks every pixel shadow
             print(f"    {str(level):>24s}  refused: {exc}", flush=True)
             return {"level": level, "depth_l1_m": None, "depth_psnr_db": None, "refused": str(exc),
                     "preprocess_seconds": prep_s, "signal_fraction": signal, **extra}
@@ -173,7 +174,7 @@ def main(argv=None) -> int:
         print(f"  {'level':>24s} {'L1 m':>8s} {'PSNR dB':>8s} {'wall s':>7s}" + ("  paper L1 m" if name == "spots" else ""))
         for r in rows:
             if r.get("refused"):
-                print(f"  {str(r['level']):>24s} refused by fit (no two-bounce return left)")
+                print(f"  {str(r['level']):>24s} refused by fit: {r['refused']}")
                 continue
             print(f"  {str(r['level']):>24s} {r['depth_l1_m']:8.4f} {r['depth_psnr_db']:8.2f} {r['wall_seconds']:7.1f}"
                   + (f"  {r['paper_depth_l1_m']}" if name == "spots" else ""))

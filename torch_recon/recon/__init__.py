@@ -7,5 +7,6 @@ trainer (loop, checkpoints, NaN recovery, early stop), api (`fit`).
 
 from .api import FitResult, fit
 from .config import FitConfig, override
+from .data import UnconstrainedMeasurementsError
 
-__all__ = ["fit", "FitResult", "FitConfig", "override"]
+__all__ = ["fit", "FitResult", "FitConfig", "override", "UnconstrainedMeasurementsError"]

@@ -15,6 +15,11 @@ from ..frames import pixel_rays
 from ..measurements import Measurements
 
 
+class UnconstrainedMeasurementsError(ValueError):
+    """The measurements leave the geometry unconstrained (no usable pair, or not one two-bounce return):
+    a fit is refused rather than returning an arbitrary volume."""
+
+
 @dataclass
 class RayData:
     sensor_origin: torch.Tensor    # (3,) c
@@ -51,7 +56,8 @@ class RayData:
         the warm-up draws from all pairs: the distance loss is then zero and only the shadow loss speaks.
         """
         if self.n_pairs == 0:
-            raise ValueError("measurements: no usable (spot, pixel) pair (every pixel excluded or unlabelled)")
+            raise UnconstrainedMeasurementsError("measurements: no usable (spot, pixel) pair "
+                                                 "(every pixel excluded or unlabelled)")
         if lit_only and self._lit is None:
             self._lit = self.lit_index()
         pool = self._lit if lit_only and self._lit.numel() > 0 else None
@@ -101,9 +107,10 @@ def build_ray_data(meas: Measurements) -> RayData:
         # start from: every shadow says only "something unknown blocks this", so any density that
         # fills the room fits it. Refuse instead of returning an arbitrary volume.
         n_shadow = int(sum(s.sum() for s in shd))
-        raise ValueError(f"measurements: no pixel has a two-bounce return in any of the {len(meas.spots)} spot(s) "
-                         f"({n_shadow} shadowed pairs, 0 lit): nothing constrains the geometry. Check the time "
-                         f"gate (gate_max_m), the photon budget and preprocess.shadow_threshold")
+        raise UnconstrainedMeasurementsError(
+            f"measurements: no pixel has a two-bounce return in any of the {len(meas.spots)} spot(s) "
+            f"({n_shadow} shadowed pairs, 0 lit): nothing constrains the geometry. Check the time "
+            f"gate (gate_max_m), the photon budget and preprocess.shadow_threshold")
     vd = meas.visible_depth
     vd = np.full(h * w, np.nan, np.float32) if vd is None else np.asarray(vd, np.float32).reshape(-1)
     f32 = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
