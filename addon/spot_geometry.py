@@ -12,9 +12,10 @@ from .config_io import lidar_camera  # puts the project modules on sys.path (add
 
 from pipeline import blender_scene as bs  # noqa: E402
 from torch_recon.contract.dataset import SensorSpec  # noqa: E402
+from torch_recon.contract.errors import PlatolidarError  # noqa: E402
 
 
-class SpotError(RuntimeError):
+class SpotError(PlatolidarError, RuntimeError):
     """A state the user can fix (no camera, nothing hit, ...)."""
 
 

@@ -12,11 +12,12 @@ import bpy
 import numpy as np
 from mathutils import Matrix, Vector
 
+from torch_recon.contract.errors import PlatolidarError
 from pipeline.config import CONFIG_TEXT_NAME, SimulationConfig, SpotConfig
 from torch_recon.contract.scenes import AreaLight, BlenderPrimitive, ExampleScene, MeshPart
 
 
-class SceneError(RuntimeError):
+class SceneError(PlatolidarError, RuntimeError):
     """The scene cannot be simulated (no camera, unsupported camera, ...)."""
 
 

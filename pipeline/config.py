@@ -14,17 +14,19 @@ import json
 import math
 from dataclasses import asdict, dataclass, field, fields
 
+from torch_recon.contract.errors import SettingsError
+
 CONFIG_SCHEMA_VERSION = "1.0"
 #: Name of the Text datablock in which the add-on keeps the settings inside the .blend
 CONFIG_TEXT_NAME = "platolidar_config.json"
 
 
-class ConfigError(ValueError):
+class ConfigError(SettingsError):
     """Bad settings: names the source and the setting and says what was expected."""
 
     def __init__(self, source: str, setting: str, message: str):
-        self.source, self.setting = source, setting
-        super().__init__(f"{source}: setting '{setting}': {message}")
+        super().__init__(setting, message, source)
+        self.setting = setting
 
 
 @dataclass

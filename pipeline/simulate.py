@@ -176,53 +176,50 @@ def load_config(args, bs):
     return cfg.validate("command line" if not args.config else f"command line + {args.config}")
 
 
-def main() -> int:
-    args = build_parser().parse_args(_argv())    # exits 2 with a usage line on unknown options
-    _add_venv_site_packages()
+def simulate(args) -> int:
     import bpy
 
     from pipeline import blender_scene as bs
     from pipeline import simulator
     from torch_recon.contract import scenes
-    from pipeline.config import ConfigError
-    from torch_recon.contract.dataset import DatasetError
 
-    try:
-        if args.example and args.blend:
-            raise simulator.SimulationError("give either a .blend or --example, not both")
-        if args.example:
-            try:
-                ex = scenes.example(args.example)
-            except KeyError as exc:
-                raise simulator.SimulationError(exc.args[0]) from None
-            bs.build_example(ex)
-            label = f"example:{args.example}"
-        elif args.blend:
-            path = os.path.abspath(args.blend)
-            if not os.path.isfile(path):
-                raise simulator.SimulationError(f"{args.blend}: no such .blend file")
-            try:
-                bpy.ops.wm.open_mainfile(filepath=path, load_ui=False)
-            except RuntimeError as exc:
-                msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else "unreadable"
-                raise simulator.SimulationError(f"{args.blend}: cannot open as a .blend file ({msg})") from None
-            label = os.path.basename(path)
-        elif bpy.data.filepath:
-            label = os.path.basename(bpy.data.filepath)   # Blender binary: the file it opened
-        else:
-            raise simulator.SimulationError("no scene: give a .blend file or --example NAME")
-        cfg = load_config(args, bs)
-        result = simulator.run(cfg, args.out, label, keep_requested=args.spots is not None)
-    except (ConfigError, DatasetError, bs.SceneError, simulator.SimulationError, FileExistsError) as exc:
-        print(f"simulate: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("simulate: interrupted; nothing written", file=sys.stderr)
-        return 130
+    if args.example and args.blend:
+        raise simulator.SimulationError("give either a .blend or --example, not both")
+    if args.example:
+        try:
+            ex = scenes.example(args.example)
+        except KeyError as exc:
+            raise simulator.SimulationError(exc.args[0]) from None
+        bs.build_example(ex)
+        label = f"example:{args.example}"
+    elif args.blend:
+        path = os.path.abspath(args.blend)
+        if not os.path.isfile(path):
+            raise simulator.SimulationError(f"{args.blend}: no such .blend file")
+        try:
+            bpy.ops.wm.open_mainfile(filepath=path, load_ui=False)
+        except RuntimeError as exc:
+            msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else "unreadable"
+            raise simulator.SimulationError(f"{args.blend}: cannot open as a .blend file ({msg})") from None
+        label = os.path.basename(path)
+    elif bpy.data.filepath:
+        label = os.path.basename(bpy.data.filepath)   # Blender binary: the file it opened
+    else:
+        raise simulator.SimulationError("no scene: give a .blend file or --example NAME")
+    cfg = load_config(args, bs)
+    result = simulator.run(cfg, args.out, label, keep_requested=args.spots is not None)
     t = result["timings"]
     print(f"simulate: wrote {args.out}: {result['spots']} spots, {cfg.width}x{cfg.height}x{cfg.bins} bins, "
           f"{t['total_s']:.1f} s", file=sys.stderr)
     return 0
+
+
+def main() -> int:
+    args = build_parser().parse_args(_argv())    # exits 2 with a usage line on unknown options
+    _add_venv_site_packages()
+    from torch_recon.contract.errors import run_command
+
+    return run_command(simulate, args, prog="simulate", interrupted="interrupted; nothing written")
 
 
 if __name__ == "__main__":

@@ -24,6 +24,7 @@ import numpy as np
 from pipeline import blender_scene as bs
 from pipeline import sensor_model, third_bounce, transient_binning
 from torch_recon.contract import ground_truth, spots
+from torch_recon.contract.errors import PlatolidarError
 from pipeline.cycles_render import EMITTER_OFFSET_M, CyclesRenderer
 from torch_recon.contract.dataset import (DatasetError, DatasetWriter, Manifest, NoiseSpec, Provenance, PulseSpec,
                                  SensorSpec, Spot, TimeGate, TransientLayout, load_dataset, transient_relpath)
@@ -36,7 +37,7 @@ RGB_POWER_W = 100.0          # point light of the RGB-shadow images (exposure on
 DEFAULT_ALBEDO = 0.8
 
 
-class SimulationError(RuntimeError):
+class SimulationError(PlatolidarError, RuntimeError):
     """A scene/setting combination that cannot be simulated; the message says which and why."""
 
 

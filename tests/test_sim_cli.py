@@ -135,7 +135,7 @@ def _fails(tmp_path, *args, blend=None, expect=""):
 
 @pytest.mark.parametrize("args,expect", [
     (["--spot-list", "0,-1,0.2"], "behind the sensor"),
-    (["--bins", 0], "setting 'bins'"),
+    (["--bins", 0], "setting bins"),
     (["--bins", 60], "exceed the bin range"),
     (["--frobnicate"], "unrecognized arguments"),
     (["--subpixel", 3], "subpixel_samples"),

@@ -2,7 +2,8 @@
 
 A command module exposes ``register(subparsers)``, which adds its parser and sets
 ``func`` (taking the parsed args, returning an exit code). Errors the user can fix
-(bad dataset, bad settings) print one clear line and exit 2, never a traceback.
+(`contract.errors.PlatolidarError`: bad dataset, bad settings; and `OSError`) print one
+clear line and exit 2; anything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -37,14 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    from .contract.dataset import DatasetError
+    from .contract.errors import run_command
 
     args = build_parser().parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except (DatasetError, ValueError, FileNotFoundError, FileExistsError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+    return run_command(args.func, args, prog="platolidar")

@@ -37,10 +37,11 @@ import numpy as np
 
 from .contract.dataset.transient import Transient
 from .contract.frames import camera_ray_directions, focal_length_px
+from .contract.errors import PlatolidarError
 from .measurements import Measurements, SpotMeasurement
 
 
-class PreprocessError(ValueError):
+class PreprocessError(PlatolidarError, ValueError):
     """Input the preprocessing cannot use; the message names the spot and what was expected."""
 
 

@@ -28,7 +28,7 @@ def run(args) -> int:
     import numpy as np
 
     from ..bflidar import BFLidarSettings, carve, grid_search
-    from ..contract.dataset import load_dataset
+    from ..contract.dataset import DatasetError, load_dataset
     from ..evaluate import EvalSettings, depth_metrics, evaluate, render_mesh_depth
     from ..measurements import Measurements
     from ..mesh_export import export_mesh
@@ -52,7 +52,7 @@ def run(args) -> int:
     if args.grid_search:
         tv = ds.test_views()
         if tv is None:
-            raise ValueError(f"{ds.root}: --grid-search needs ground_truth.test_views")
+            raise DatasetError(str(ds.root), "ground_truth.test_views", "--grid-search needs test views")
         views, cams, gt = tv
 
         def score(mesh):

@@ -33,6 +33,7 @@ def run(args) -> int:
     import json
     from pathlib import Path
 
+    from ..contract.errors import SettingsError
     from ..recon import FitConfig, fit, override
 
     base = {}
@@ -43,7 +44,7 @@ def run(args) -> int:
         except FileNotFoundError:
             raise FileNotFoundError(f"{path}: settings file not found") from None
         except json.JSONDecodeError as exc:
-            raise ValueError(f"{path}: not valid JSON ({exc})") from None
+            raise SettingsError("", f"not valid JSON ({exc})", str(path)) from None
     cfg = FitConfig.from_dict({**base, "mode": args.mode})
     sets = list(args.set)
     for flag, key in (("steps", "steps"), ("max_seconds", "max_seconds"), ("seed", "seed"), ("device", "device"),

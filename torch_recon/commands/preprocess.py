@@ -11,12 +11,14 @@ def add_device_arg(p) -> None:
 
 def resolve_device(name: str, threads: int | None = None) -> str:
     import torch
+
+    from ..contract.errors import SettingsError
     if threads is not None:
         if threads < 1:
-            raise ValueError(f"--threads must be >= 1, got {threads}")
+            raise SettingsError("threads", f"expected an integer >= 1, got {threads}")
         torch.set_num_threads(threads)
     if name.startswith("cuda") and not torch.cuda.is_available():
-        raise ValueError(f"--device {name}: CUDA is not available in this torch build/machine; use --device cpu")
+        raise SettingsError("device", f"{name}: CUDA is not available in this torch build/machine; use cpu")
     return name
 
 
@@ -71,13 +73,14 @@ def run(args) -> int:
     from pathlib import Path
 
     from ..contract.dataset import load_dataset
+    from ..contract.errors import SettingsError
     from ..preprocess import preprocess_dataset
 
     settings = settings_from_args(args)
     device = resolve_device(args.device, args.threads)
     out = Path(args.out)
     if out.suffix != ".npz":
-        raise ValueError(f"--out {out}: expected a .npz file name")
+        raise SettingsError("out", f"expected a .npz file name, got {out}")
     ds = load_dataset(args.dataset)
     t0 = time.perf_counter()
     meas = preprocess_dataset(ds, settings, device=device, progress=True)

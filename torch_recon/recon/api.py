@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from ..contract.frames import pixel_rays
+from ..contract.errors import SettingsError
 from ..measurements import Measurements
 from .config import FitConfig
 from .data import build_ray_data
@@ -69,7 +70,7 @@ def resolve_device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name == "cuda" and not torch.cuda.is_available():
-        raise ValueError("device: 'cuda' requested but torch sees no CUDA device")
+        raise SettingsError("device", "'cuda' requested but torch sees no CUDA device; use cpu")
     return torch.device(name)
 
 

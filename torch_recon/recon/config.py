@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, fields, is_dataclass
 
+from ..contract.errors import SettingsError
+
 MODES = ("fast", "platonerf")
 
 
@@ -100,14 +102,14 @@ class FitConfig:
 
     def __post_init__(self):
         if self.mode not in MODES:
-            raise ValueError(f"mode: expected one of {list(MODES)}, got {self.mode!r}")
+            raise SettingsError("", f"mode: expected one of {list(MODES)}, got {self.mode!r}")
         if not 0.0 <= self.loss.warmup_fraction <= 1.0:
-            raise ValueError(f"loss.warmup_fraction: expected a fraction in [0, 1], got {self.loss.warmup_fraction}")
+            raise SettingsError("", f"loss.warmup_fraction: expected a fraction in [0, 1], got {self.loss.warmup_fraction}")
         if self.fast.coarse_resolution < 4 or self.fast.resolution < 4:
-            raise ValueError("fast.resolution and fast.coarse_resolution must be >= 4 "
+            raise SettingsError("", "fast.resolution and fast.coarse_resolution must be >= 4 "
                              "(a coarse level at or above the resolution is skipped)")
         if self.device not in ("auto", "cpu", "cuda"):
-            raise ValueError(f"device: expected 'auto', 'cpu' or 'cuda', got {self.device!r}")
+            raise SettingsError("", f"device: expected 'auto', 'cpu' or 'cuda', got {self.device!r}")
 
     @property
     def total_steps(self) -> int:
@@ -125,11 +127,11 @@ class FitConfig:
 
 def _from_dict(cls, d, path):
     if not isinstance(d, dict):
-        raise ValueError(f"{path}: expected an object, got {type(d).__name__}")
+        raise SettingsError("", f"{path}: expected an object, got {type(d).__name__}")
     known = {f.name: f for f in fields(cls)}
     unknown = set(d) - set(known)
     if unknown:
-        raise ValueError(f"{path}: unknown setting(s) {sorted(unknown)}; known: {sorted(known)}")
+        raise SettingsError("", f"{path}: unknown setting(s) {sorted(unknown)}; known: {sorted(known)}")
     kw = {}
     for name, value in d.items():
         default = getattr(cls(), name) if name not in ("loss", "fast", "platonerf") else None
@@ -138,7 +140,7 @@ def _from_dict(cls, d, path):
             kw[name] = _from_dict(sub, value, f"{path}.{name}")
         else:
             if is_dataclass(default):
-                raise ValueError(f"{path}.{name}: nested settings not supported here")
+                raise SettingsError("", f"{path}.{name}: nested settings not supported here")
             kw[name] = value
     return cls(**kw)
 
@@ -150,7 +152,7 @@ def override(cfg: FitConfig, assignments: list[str]) -> FitConfig:
     d = cfg.to_dict()
     for a in assignments:
         if "=" not in a:
-            raise ValueError(f"--set {a!r}: expected KEY=VALUE, e.g. fast.resolution=96")
+            raise SettingsError("", f"--set {a!r}: expected KEY=VALUE, e.g. fast.resolution=96")
         key, raw = a.split("=", 1)
         try:
             value = json.loads(raw)
@@ -160,9 +162,9 @@ def override(cfg: FitConfig, assignments: list[str]) -> FitConfig:
         parts = key.split(".")
         for p in parts[:-1]:
             if not isinstance(node.get(p), dict):
-                raise ValueError(f"--set {key}: no settings section {p!r}")
+                raise SettingsError("", f"--set {key}: no settings section {p!r}")
             node = node[p]
         if parts[-1] not in node:
-            raise ValueError(f"--set {key}: unknown setting {parts[-1]!r}")
+            raise SettingsError("", f"--set {key}: unknown setting {parts[-1]!r}")
         node[parts[-1]] = value
     return FitConfig.from_dict(d)
