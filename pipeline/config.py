@@ -15,6 +15,7 @@ import math
 from dataclasses import asdict, dataclass, field, fields
 
 from torch_recon.contract.errors import SettingsError
+from torch_recon.contract.settings import check_value, find_spec
 
 CONFIG_SCHEMA_VERSION = "1.0"
 #: Name of the Text datablock in which the add-on keeps the settings inside the .blend
@@ -135,6 +136,11 @@ class SimulationConfig:
         kw = dict(d)
         kw.pop("schema_version", None)
         spots = kw.pop("spots", [])
+        for key, value in kw.items():   # types and ranges: the shared settings mechanism
+            try:
+                kw[key] = check_value(find_spec(cls, key), value)
+            except SettingsError as exc:
+                raise ConfigError(source, key, exc.detail) from None
         if not isinstance(spots, list):
             raise ConfigError(source, "spots", "expected a list")
         spot_keys = {f.name for f in fields(SpotConfig)}

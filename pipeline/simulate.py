@@ -90,6 +90,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--test-view-resolution", type=int)
     ap.add_argument("--no-gt", action="store_true", help="no ground truth (depths, mesh)")
     ap.add_argument("--seed", type=int)
+    ap.add_argument("--set", dest="set_values", action="append", default=[], metavar="KEY=VALUE",
+                    help="any SimulationConfig setting by name, e.g. --set photons_per_pixel=500 (repeatable; "
+                         "wins over the options above)")
     return ap
 
 
@@ -173,7 +176,20 @@ def load_config(args, bs):
         merged["spots"] = [vars(s) for s in file_cfg.spots] if "spots" in raw else [vars(s) for s in cfg.spots]
         cfg = SimulationConfig.from_dict(merged, args.config)
     cfg = apply_options(cfg, args)
+    cfg = apply_sets(cfg, args.set_values)
     return cfg.validate("command line" if not args.config else f"command line + {args.config}")
+
+
+def apply_sets(cfg, assignments):
+    """--set KEY=VALUE over a SimulationConfig, each value type-checked by the shared settings mechanism."""
+    from torch_recon.contract.settings import check_value, find_spec, parse_assignments
+    from torch_recon.contract.errors import SettingsError
+
+    for key, raw in parse_assignments(assignments).items():
+        if key == "spots":
+            raise SettingsError("spots", "set spots with --spot-list or a --config file")
+        setattr(cfg, key, check_value(find_spec(type(cfg), key), raw))
+    return cfg
 
 
 def simulate(args) -> int:

@@ -32,6 +32,9 @@ from .contract.errors import SettingsError, UnconstrainedMeasurementsError
 
 @dataclass
 class BFLidarSettings:
+    SETTINGS_META = {"voxels": {"range": (4, None)}, "occupancy_threshold": {"range": (0.0, 1.0)},
+                     "bbox_padding_m": {"unit": "m"}}
+
     voxels: int = 128                  # voxels along the longest bbox axis
     bbox_min: tuple | None = None      # None: visible points' bounds + padding
     bbox_max: tuple | None = None
@@ -254,6 +257,19 @@ def rethreshold(result: BFLidarResult, occupancy_threshold: float) -> BFLidarRes
     occ = gaussian_filter(binary, sig) if sig > 0 else binary
     return replace(result, occupancy=occ.astype(np.float32),
                    settings={**result.settings, "occupancy_threshold": occupancy_threshold})
+
+
+def test_view_depth_l1(cameras, gt_depths, width: int, height: int, fov_rad: float, fov_axis: str = "x",
+                       stride: int = 1):
+    """score(mesh) for `grid_search`: depth L1 (m) of the mesh on every `stride`-th test view (the paper's criterion)."""
+    from .evaluate import depth_metrics, render_mesh_depth
+
+    sub = slice(None, None, int(stride))
+
+    def score(mesh):
+        pred = np.stack([render_mesh_depth(mesh, c, width, height, fov_rad, fov_axis) for c in cameras[sub]])
+        return depth_metrics(pred, np.asarray(gt_depths)[sub])["depth_l1_m"]
+    return score
 
 
 def grid_search(meas, score, settings: BFLidarSettings | None = None, occupancy_thresholds=(0.1, 0.2, 0.3, 0.5, 0.7),

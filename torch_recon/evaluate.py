@@ -42,6 +42,13 @@ PSNR_MSE_FLOOR = 1e-10
 
 @dataclass
 class EvalSettings:
+    SETTINGS_META = {"fscore_threshold_m": {"flags": ("--fscore-threshold",), "unit": "m", "help": "F-score distance threshold"},
+                     "n_surface_samples": {"flags": ("--samples",), "help": "surface samples for Chamfer/F-score",
+                                           "range": (1, None)},
+                     "miss_depth": {"choices": ("zero", "max"),
+                                    "help": "depth a reconstruction ray that hits nothing counts as"},
+                     "error_images": {"help": "write every n-th view's error PNG (0: none)", "range": (0, None)}}
+
     fscore_threshold_m: float = 0.05
     n_surface_samples: int = 100_000
     miss_depth: str = "zero"          # 'zero' | 'max' (see module doc)

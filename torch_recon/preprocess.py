@@ -58,6 +58,10 @@ class PreprocessSettings:
     chunk_elements: int = 1 << 24      # bins processed per chunk (memory bound)
     compute_visible_depth: bool = True
 
+    SETTINGS_META = {"refine": {"choices": ("lut", "gaussian", "parabola", "none")},
+                     "background": {"choices": ("none", "median")}, "shadow_threshold": {"range": (0.0, 1.0)},
+                     "gate_max_m": {"unit": "m"}}
+
     def validate(self):
         if not 0.0 <= self.shadow_threshold <= 1.0:
             raise PreprocessError(f"shadow_threshold must be in [0, 1], got {self.shadow_threshold}")

@@ -96,7 +96,7 @@ def train(model, data, cfg: FitConfig, gen: torch.Generator, out_dir=None, on_ev
     from tqdm.auto import tqdm
 
     total = cfg.total_steps
-    batch = cfg.fast.rays_per_batch if cfg.mode == "fast" else cfg.platonerf.rays_per_batch
+    batch = cfg.method_settings.rays_per_batch
     res = TrainResult()
     ck_path = Path(out_dir) / CHECKPOINT_NAME if out_dir is not None else None
     start = 0
