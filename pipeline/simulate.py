@@ -52,9 +52,11 @@ def _argv() -> list:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="simulate.py", description="Cycles two-bounce lidar simulator "
+    ap = argparse.ArgumentParser(prog="platolidar simulate", description="Cycles two-bounce lidar simulator "
                                  "(defaults: the paper's 512x512 pixels, 391 bins of 128 ps, 16 spots)")
     ap.add_argument("blend", nargs="?", help="scene .blend (with a Blender binary: the file Blender opened)")
+    ap.add_argument("--blender", metavar="BIN", help="(platolidar simulate only) run inside this Blender binary "
+                    "instead of the bpy module")
     ap.add_argument("--out", required=True, help="dataset directory to write (replaced atomically)")
     ap.add_argument("--example", help="build an example scene instead of a .blend: "
                     "cave-chair, monkey, occluders, curved-wall, low-albedo, ambient")
@@ -230,8 +232,8 @@ def simulate(args) -> int:
     return 0
 
 
-def main() -> int:
-    args = build_parser().parse_args(_argv())    # exits 2 with a usage line on unknown options
+def main(argv=None) -> int:
+    args = build_parser().parse_args(_argv() if argv is None else argv)  # exits 2 with a usage line on bad options
     _add_venv_site_packages()
     from torch_recon.contract.errors import run_command
 
