@@ -37,7 +37,7 @@ def simulate_command(blender: str, blend_file: str, script: str, out_dir: str) -
     return command(["--out", out_dir], blend=blend_file, blender=blender, script=script)
 
 
-def reconstruct_command(python: str, dataset: str, out_dir: str, mode: str = "fast") -> list[str]:
+def reconstruct_command(python: str, dataset: str, out_dir: str, mode: str) -> list[str]:
     return [str(python), "-m", "torch_recon", "fit", str(dataset), "--mode", mode, "--out", str(out_dir)]
 
 

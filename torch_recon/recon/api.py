@@ -98,12 +98,12 @@ def load_source(source, progress: bool = True):
     return meas, "dataset:" + ds.content_hash()
 
 
-def fit(source, mode: str = "fast", out=None, config: FitConfig | None = None, on_eval=None,
+def fit(source, mode: str | None = None, out=None, config: FitConfig | None = None, on_eval=None,
         export: bool = True, fault_hook=None, stop_after: int | None = None, uv: bool = True) -> FitResult:
     """Fit a density field to two-bounce measurements and (with `out` and `export`) write the mesh."""
     t_start = time.perf_counter()
-    cfg = config or FitConfig(mode=mode)
-    if config is not None and mode != cfg.mode:
+    cfg = config or (FitConfig(mode=mode) if mode else FitConfig())
+    if mode and mode != cfg.mode:
         cfg = FitConfig.from_dict({**cfg.to_dict(), "mode": mode})
     torch.manual_seed(cfg.seed)
     dev = resolve_device(cfg.device, cfg.threads)

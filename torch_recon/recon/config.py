@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, field
 
 from ..contract import settings
 from ..contract.errors import SettingsError
-from ..contract.methods import FIT_METHODS, method
+from ..contract.methods import DEFAULT_FIT_METHOD, FIT_METHODS, method
 from ..contract.settings import check_device_name
 
 MODES = FIT_METHODS   # the fit methods of the method table (contract/methods.py)
@@ -85,7 +85,7 @@ class PlatoNeRFConfig:
 
 @dataclass
 class FitConfig:
-    mode: str = "fast"
+    mode: str = DEFAULT_FIT_METHOD
     seed: int = 0
     device: str = "auto"              # 'auto' (CUDA when present), 'cpu', 'cuda', 'cuda:N'
     threads: int = 2                  # torch CPU threads
