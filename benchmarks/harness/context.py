@@ -230,7 +230,7 @@ def _cache_problem(out: Path, args) -> str | None:
     if _file_sizes(out) != recorded.get("files"):
         return "cached files changed or missing"
     try:
-        from torch_recon.dataset import load_dataset
+        from torch_recon.contract.dataset import load_dataset
         load_dataset(out)
     except Exception as exc:      # noqa: BLE001 - any failure to open means: simulate again
         return f"cached dataset invalid: {exc}"
