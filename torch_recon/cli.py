@@ -48,4 +48,4 @@ def main(argv=None) -> int:
         from .commands.simulate import main as simulate_main
         return simulate_main(argv[1:])
     args = build_parser().parse_args(argv)
-    return run_command(args.func, args, prog="platolidar")
+    return run_command(args.func, args)

@@ -50,4 +50,4 @@ def test_cli_reports_a_missing_dataset_in_one_line(tmp_path, capsys):
     assert main(["evaluate", str(tmp_path / "nope.ply"), "--dataset", str(tmp_path / "missing"),
                  "--out", str(tmp_path / "eval")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("platolidar: error: ") and str(tmp_path) in err[0], err
+    assert len(err) == 1 and err[0].startswith("error: ") and str(tmp_path) in err[0], err
