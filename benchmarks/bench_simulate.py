@@ -55,7 +55,7 @@ def run_sim(out, *args):
 
 def accuracy(out) -> dict:
     from torch_recon.contract import scenes
-    from torch_recon import analytic
+    from torch_recon.contract import analytic
     from torch_recon.contract.dataset import load_dataset
 
     ds = load_dataset(out)

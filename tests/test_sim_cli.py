@@ -206,7 +206,7 @@ def test_time_gate_keeps_the_signal_and_gains_t_over_w(tmp_path):
 def test_laser_offset_from_the_sensor(blend_dir, tmp_path):
     """A laser object 0.4 m beside the camera: l, paths and energy still match the analytic renderer."""
     from sim_fixtures import blend_trimesh
-    from torch_recon import analytic
+    from torch_recon.contract import analytic
 
     blend = build_blend(blend_dir / "laser.blend", laser_at=[0.4, 0.0, 0.1], config={"laser_object": "laser"},
                         spots=[{"target": [0.5, 3.0, 0.5]}, {"target": [-1.0, 2.0, -1.0]}])
