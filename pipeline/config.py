@@ -15,7 +15,7 @@ import math
 from dataclasses import asdict, dataclass, field, fields
 
 from torch_recon.contract.errors import SettingsError
-from torch_recon.contract.settings import check_value, find_spec
+from torch_recon.contract.settings import check_value, find_spec, load_file
 
 CONFIG_SCHEMA_VERSION = "1.0"
 #: Name of the Text datablock in which the add-on keeps the settings inside the .blend
@@ -161,9 +161,9 @@ class SimulationConfig:
 
     @classmethod
     def load(cls, path) -> "SimulationConfig":
+        """A settings file: JSON, or TOML by suffix (the shared reader, contract/settings.py)."""
         try:
-            with open(path) as f:
-                text = f.read()
+            d = load_file(path)
         except OSError as exc:
             raise ConfigError(str(path), "", f"cannot read ({exc.strerror})") from None
-        return cls.from_json(text, str(path))
+        return cls.from_dict(d, str(path))

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import glob
-import json
 import os
 import sys
 from pathlib import Path
@@ -165,15 +164,14 @@ def apply_options(cfg, args):
 
 
 def load_config(args, bs):
-    from pipeline.config import ConfigError, SimulationConfig
+    from pipeline.config import SimulationConfig
 
     cfg = bs.stored_config() or SimulationConfig()
     if args.config:
+        from torch_recon.contract.settings import load_file
+
         file_cfg = SimulationConfig.load(args.config)          # validates, rejects unknown settings
-        try:
-            raw = json.loads(Path(args.config).read_text())
-        except (OSError, json.JSONDecodeError) as exc:
-            raise ConfigError(args.config, "", str(exc)) from None
+        raw = load_file(args.config)
         merged = {**cfg.to_dict(), **{k: v for k, v in raw.items() if k != "schema_version"}}
         merged["spots"] = [vars(s) for s in file_cfg.spots] if "spots" in raw else [vars(s) for s in cfg.spots]
         cfg = SimulationConfig.from_dict(merged, args.config)

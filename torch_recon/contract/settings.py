@@ -318,6 +318,12 @@ def add_arguments(parser: argparse.ArgumentParser, cls, flags=(), sets: bool = T
         dest_keys[dest] = key
     parser._settings_flags = dest_keys
     if sets:
+        import textwrap
+
+        listing = ", ".join(f"{s.key}={s.default}" for s in all_specs(cls))
+        parser.epilog = "settings (--set KEY=VALUE, or --config FILE): " + listing
+        parser.epilog = "\n".join(textwrap.wrap(parser.epilog, 100, subsequent_indent="  "))
+        parser.formatter_class = argparse.RawDescriptionHelpFormatter
         parser.add_argument("--config", metavar="FILE", help="settings file (JSON, or TOML by suffix): any "
                             "settings by name, sections as nested tables; flags and --set win over it")
         parser.add_argument("--set", dest="set_values", action="append", default=[], metavar="KEY=VALUE",
