@@ -127,7 +127,8 @@ def _grid(meas, points, s: BFLidarSettings):
         lo, hi = np.asarray(s.bbox_min, float), np.asarray(s.bbox_max, float)
     else:
         if len(points) == 0:
-            raise UnconstrainedMeasurementsError("no visible points: cannot place the carving grid (give bbox_min/bbox_max)")
+            raise UnconstrainedMeasurementsError("no visible points: cannot place the carving grid "
+                                                 "(give bbox_min/bbox_max)")
         lo = points.min(0) - s.bbox_padding_m
         hi = points.max(0) + s.bbox_padding_m
         lo = np.minimum(lo, np.asarray([sp.first_bounce for sp in meas.spots]).min(0) - s.bbox_padding_m)
@@ -194,7 +195,8 @@ def carve(meas, settings: BFLidarSettings | None = None, device="cpu", progress=
     s.validate()
     t0 = time.perf_counter()
     if meas.visible_depth is None:
-        raise UnconstrainedMeasurementsError("measurements carry no visible depth: preprocess with compute_visible_depth=True")
+        raise UnconstrainedMeasurementsError("measurements carry no visible depth: preprocess with "
+                                             "compute_visible_depth=True")
     o, d = pixel_rays(meas.camera_to_world, meas.width, meas.height, meas.fov_rad, meas.fov_axis)
     depth = meas.visible_depth
     ok = np.isfinite(depth)
@@ -261,7 +263,7 @@ def rethreshold(result: BFLidarResult, occupancy_threshold: float) -> BFLidarRes
 
 def test_view_depth_l1(cameras, gt_depths, width: int, height: int, fov_rad: float, fov_axis: str = "x",
                        stride: int = 1):
-    """score(mesh) for `grid_search`: depth L1 (m) of the mesh on every `stride`-th test view (the paper's criterion)."""
+    """score(mesh) for `grid_search`: depth L1 (m) of the mesh on every `stride`-th test view (the paper's way)."""
     from .evaluate import depth_metrics, render_mesh_depth
 
     sub = slice(None, None, int(stride))

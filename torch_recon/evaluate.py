@@ -42,7 +42,8 @@ PSNR_MSE_FLOOR = 1e-10
 
 @dataclass
 class EvalSettings:
-    SETTINGS_META = {"fscore_threshold_m": {"flags": ("--fscore-threshold",), "unit": "m", "help": "F-score distance threshold"},
+    SETTINGS_META = {"fscore_threshold_m": {"flags": ("--fscore-threshold",), "unit": "m",
+                                            "help": "F-score distance threshold"},
                      "n_surface_samples": {"flags": ("--samples",), "help": "surface samples for Chamfer/F-score",
                                            "range": (1, None)},
                      "miss_depth": {"choices": ("zero", "max"),

@@ -94,7 +94,8 @@ class Measurements:
     def load(cls, path) -> "Measurements":
         z = np.load(path, allow_pickle=False)
         if int(z["version"]) != MEASUREMENTS_VERSION:
-            raise MeasurementsError(f"{path}: measurements version {int(z['version'])}, expected {MEASUREMENTS_VERSION}")
+            raise MeasurementsError(f"{path}: measurements version {int(z['version'])}, "
+                                    f"expected {MEASUREMENTS_VERSION}")
         fov, bw, thr = (float(v) for v in z["meta_f"])
         w, h = (int(v) for v in z["meta_i"])
         spots = []

@@ -16,7 +16,7 @@ class BaselineCommand:
     bflidar: BFLidarSettings = field(default_factory=BFLidarSettings)
     device: str = "cpu"               # torch device: auto, cpu, cuda, cuda:N
     threads: int | None = None        # CPU threads for torch (None: torch's choice)
-    grid_search: bool = False         # pick shadow/occupancy thresholds by depth L1 on the test views (uses ground truth)
+    grid_search: bool = False         # pick shadow/occupancy thresholds by depth L1 on the test views (needs GT)
     evaluate: bool = False            # also write report.json for the mesh
 
     SETTINGS_META = {"threads": {"range": (1, None)}}

@@ -250,7 +250,8 @@ def with_values(base, values: dict):
     for key, raw in values.items():
         spec = find_spec(type(base), key)
         if spec.is_section:
-            raise SettingsError(key, "is a section; set one of its values, e.g. " + all_specs(spec.kind, key + ".")[0].key)
+            example = all_specs(spec.kind, key + ".")[0].key
+            raise SettingsError(key, f"is a section; set one of its values, e.g. {example}")
         node = nested
         parts = key.split(".")
         for p in parts[:-1]:

@@ -103,7 +103,8 @@ class FitConfig:
     fast: FastConfig = field(default_factory=FastConfig)
     platonerf: PlatoNeRFConfig = field(default_factory=PlatoNeRFConfig)
 
-    SETTINGS_META = {"mode": {"choices": FIT_METHODS, "help": "reconstruction method (contract/methods.py)"}, "threads": {"range": (1, None)},
+    SETTINGS_META = {"mode": {"choices": FIT_METHODS, "help": "reconstruction method (contract/methods.py)"},
+                     "threads": {"range": (1, None)},
                      "steps": {"range": (1, None)}, "max_seconds": {"range": (0, None), "unit": "s"},
                      "checkpoint_every_s": {"unit": "s"}}
 
