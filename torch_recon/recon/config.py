@@ -105,7 +105,7 @@ class FitConfig:
 
     SETTINGS_META = {"mode": {"choices": FIT_METHODS, "help": "reconstruction method (contract/methods.py)"},
                      "threads": {"range": (1, None)},
-                     "steps": {"range": (1, None)}, "max_seconds": {"range": (0, None), "unit": "s"},
+                     "steps": {"range": (0, None)}, "max_seconds": {"range": (0, None), "unit": "s"},
                      "checkpoint_every_s": {"unit": "s"}}
 
     def __post_init__(self):
