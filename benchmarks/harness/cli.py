@@ -12,12 +12,16 @@ from pathlib import Path
 
 from benchmarks.harness import report
 from benchmarks.harness.context import REPO_ROOT, RESULTS_DIR, Context
+
+QUICK_DIR = RESULTS_DIR / "quick"
 from benchmarks.harness.suite import SettingsError, all_suites
 
 
-def run_suite(suite, quick: bool, overrides=(), results_dir: Path = RESULTS_DIR, data_dir: Path | None = None,
+def run_suite(suite, quick: bool, overrides=(), results_dir: Path | None = None, data_dir: Path | None = None,
               log=None) -> Path:
-    """Run one suite, check its rows, write results/<name>.json and .png; the JSON's path."""
+    """Run one suite, check its rows, write results/<name>.json and .png (quick runs: results/quick/, which
+    git ignores, so a smoke run never replaces the measured figures README shows); the JSON's path."""
+    results_dir = results_dir or (QUICK_DIR if quick else RESULTS_DIR)
     log = log or (lambda msg: print(msg, flush=True))
     settings = suite.settings(quick, overrides)
     machine = report.machine_info()

@@ -1,0 +1,67 @@
+"""The whole chain as a user runs it: simulate -> fit (fast) -> evaluate, per sensor resolution.
+
+Every stage is a subprocess of its real entry point (pipeline/simulate.py, torch_recon fit, torch_recon
+evaluate), so the times include start-up and file I/O; simulation is run fresh here (not the dataset
+cache) because its time is part of the chain. Error: depth L1 / PSNR on the dataset's test views,
+Chamfer and F-score against the ground-truth mesh (torch_recon evaluate's report).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from benchmarks.harness import Suite, report, runners
+from benchmarks.harness.datasets import SIMULATE, simulate_args
+
+PAPER = {"depth_l1_m": 0.0862, "depth_psnr_db": 26.58}
+
+
+@dataclass(frozen=True)
+class Settings:
+    resolutions: tuple[int, ...] = (128, 512)
+    example: str = "cave-chair"
+    fit_seconds: float = 900.0
+    steps: int | None = None           # None: the fast mode's default
+    test_views: int | None = None      # None: the simulator's default (the paper's 139)
+    test_view_resolution: int | None = None
+    seed: int = 0
+    sets: tuple[str, ...] = ()         # FitConfig overrides, e.g. fast.resolution=48
+
+
+def run(s: Settings, ctx) -> list[dict]:
+    rows = []
+    for res in s.resolutions:
+        data = ctx.work_dir / f"sim{res}"
+        opts = {"seed": s.seed, "test_views": s.test_views, "test_view_resolution": s.test_view_resolution}
+        sim = ctx.run_cli(["python", SIMULATE, *simulate_args(s.example, res, 16, opts), "--out", data])
+        r = runners.fit(ctx, data, f"fit{res}", max_seconds=s.fit_seconds, steps=s.steps, seed=s.seed, uv=True,
+                         sets=s.sets)
+        rows.append({"method": "fast", "scene": s.example, "wall_s": r["wall_s"], "cpu_s": r["cpu_s"],
+                     "peak_rss_mb": r["peak_rss_mb"], "resolution": res, "simulate_wall_s": sim.wall_s,
+                     "simulate_cpu_s": sim.cpu_s, "simulate_peak_rss_mb": sim.peak_rss_mb,
+                     "evaluate_wall_s": r["evaluate_wall_s"], "steps": r["steps"],
+                     **{k: r[k] for k in ("depth_l1_m", "depth_psnr_db", "chamfer_m", "fscore", "n_test_views")}})
+        ctx.log(f"  {res} px: simulate {sim.wall_s:.1f} s, fit {r['wall_s']:.1f} s, L1 {r['depth_l1_m']:.4f} m, "
+                f"PSNR {r['depth_psnr_db']:.2f} dB")
+    return rows
+
+
+def plot(rows, settings, path):
+    report.plot_rows([{**r, "method": f"fast, {r['resolution']} px"} for r in rows], path, y="depth_l1_m",
+                     title=f"{settings.example}, Cycles-simulated, 16 spots; paper L1 {PAPER['depth_l1_m']} m")
+
+
+def readme(results) -> str:
+    rows = [{**r, "sensor": f"{r['resolution']} x {r['resolution']}", "rss_gb": r["peak_rss_mb"] / 1024}
+            for r in results["rows"]]
+    rows.append({"sensor": "paper (PlatoNeRF, 512 x 512, 200k steps on a GPU)", "wall_s": "hours", **PAPER})
+    return report.markdown_table(rows, [("sensor", "sensor"), ("wall_s", "fast-mode fit (wall s, incl. preprocessing)"),
+                                        ("rss_gb", "peak RSS (GB)"), ("depth_l1_m", "depth L1 (m)"),
+                                        ("depth_psnr_db", "PSNR (dB)"), ("chamfer_m", "Chamfer (m)"),
+                                        ("fscore", "F-score @ 5 cm")])
+
+
+SUITE = Suite("chain", __doc__.splitlines()[0], run=run, plot=plot, readme=readme,
+              quick=Settings(resolutions=(32,), fit_seconds=60.0, steps=30, test_views=6, test_view_resolution=32,
+                             sets=("fast.resolution=48", "fast.coarse_resolution=24")),
+              full=Settings())
