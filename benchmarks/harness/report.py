@@ -179,22 +179,25 @@ def _num(v):
 
 # -- README tables ------------------------------------------------------------------------------
 
-def fmt(v) -> str:
-    """A table cell: floats with 3-4 significant digits, None as '-'."""
+def fmt(v, spec: str | None = None) -> str:
+    """A table cell: `spec` (a format spec such as '.1f') for numbers, else floats with 4 decimals below 1
+    and 2 above; None as '-'."""
     if v is None:
         return "-"
-    if isinstance(v, bool) or not isinstance(v, float):
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or (isinstance(v, float) and not math.isfinite(v)):
         return str(v)
-    if not math.isfinite(v):
+    if spec:
+        return format(v, spec)
+    if not isinstance(v, float):
         return str(v)
-    a = abs(v)
-    return f"{v:.4f}" if a < 1 else f"{v:.2f}" if a < 100 else f"{v:.0f}"
+    return f"{v:.4f}" if abs(v) < 1 else f"{v:.2f}" if abs(v) < 1000 else f"{v:.0f}"
 
 
 def markdown_table(rows, columns) -> str:
-    """`columns`: [(field, header), ...]."""
-    lines = ["| " + " | ".join(h for _, h in columns) + " |", "|" + "---|" * len(columns)]
-    lines += ["| " + " | ".join(fmt(r.get(k)) for k, _ in columns) + " |" for r in rows]
+    """`columns`: [(field, header) or (field, header, format spec), ...]."""
+    cols = [(c[0], c[1], c[2] if len(c) > 2 else None) for c in columns]
+    lines = ["| " + " | ".join(h for _, h, _ in cols) + " |", "|" + "---|" * len(cols)]
+    lines += ["| " + " | ".join(fmt(r.get(k), spec) for k, _, spec in cols) + " |" for r in rows]
     return "\n".join(lines)
 
 

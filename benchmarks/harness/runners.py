@@ -1,5 +1,6 @@
 """The one way benchmarks run a reconstruction and score it: the real entry points as subprocesses.
 
+    p = preprocess(ctx, dataset, "meas", shadow_threshold=0.25)   # torch_recon preprocess -> .npz
     m = fit(ctx, dataset, "fit128", steps=200)          # torch_recon fit, then evaluate of its mesh
     b = baseline(ctx, dataset, "bflidar128")            # torch_recon baseline, then evaluate
     e = evaluate(ctx, mesh, dataset, "eval")            # torch_recon evaluate alone
@@ -48,6 +49,24 @@ def _run(ctx, args, timeout):
 def _mesh_in(folder: Path) -> Path | None:
     """The mesh an entry point wrote into `folder` (.ply preferred: the fastest to read)."""
     return next((folder / f"mesh{ext}" for ext in (".ply", ".glb", ".obj") if (folder / f"mesh{ext}").is_file()), None)
+
+
+def preprocess(ctx, dataset, out, timeout=None, **settings) -> dict:
+    """`torch_recon preprocess DATASET --out OUT.npz --KEY VALUE ...` (PreprocessSettings by their flags,
+    e.g. shadow_threshold=0.25, background="median"): the .npz path ("measurements") and the times."""
+    npz = ctx.work_dir / f"{out}.npz"
+    npz.unlink(missing_ok=True)
+    cmd = [*RECON, "preprocess", dataset, "--out", npz]
+    for key, value in settings.items():
+        cmd += [f"--{key.replace('_', '-')}", value]
+    run = _run(ctx, cmd, timeout)
+    return {**run.times(), "measurements": npz}
+
+
+def combined(*timings: dict) -> dict:
+    """Times of stages run one after the other: wall and CPU add up, peak memory is the largest."""
+    return {"wall_s": sum(t["wall_s"] for t in timings), "cpu_s": sum(t["cpu_s"] for t in timings),
+            "peak_rss_mb": max(t["peak_rss_mb"] for t in timings)}
 
 
 def evaluate(ctx, mesh, dataset, out, timeout=None, args=()) -> dict:

@@ -52,13 +52,12 @@ def plot(rows, settings, path):
 
 
 def readme(results) -> str:
-    rows = [{**r, "sensor": f"{r['resolution']} x {r['resolution']}", "rss_gb": r["peak_rss_mb"] / 1024}
-            for r in results["rows"]]
+    rows = [{**r, "sensor": f"{r['resolution']} x {r['resolution']}"} for r in results["rows"]]
     rows.append({"sensor": "paper (PlatoNeRF, 512 x 512, 200k steps on a GPU)", "wall_s": "hours", **PAPER})
-    return report.markdown_table(rows, [("sensor", "sensor"), ("wall_s", "fast-mode fit (wall s, incl. preprocessing)"),
-                                        ("rss_gb", "peak RSS (GB)"), ("depth_l1_m", "depth L1 (m)"),
-                                        ("depth_psnr_db", "PSNR (dB)"), ("chamfer_m", "Chamfer (m)"),
-                                        ("fscore", "F-score @ 5 cm")])
+    return report.markdown_table(rows, [("sensor", "sensor"), ("wall_s", "fast-mode fit (wall s, incl. preprocessing)", ".1f"),
+                                        ("peak_rss_mb", "peak RSS (MB)", ".0f"), ("depth_l1_m", "depth L1 (m)", ".4f"),
+                                        ("depth_psnr_db", "PSNR (dB)", ".2f"), ("chamfer_m", "Chamfer (m)", ".4f"),
+                                        ("fscore", "F-score @ 5 cm", ".3f")])
 
 
 SUITE = Suite("chain", __doc__.splitlines()[0], run=run, plot=plot, readme=readme,
