@@ -79,7 +79,7 @@ def main(argv=None) -> int:
     a = sub.add_parser("all", help="run every suite in turn (one failing does not stop the others)")
     a.add_argument("--quick", action="store_true")
     a.add_argument("--skip", nargs="*", default=[], metavar="NAME")
-    sub.add_parser("readme", help="regenerate README's tables from benchmarks/results/*.json")
+    sub.add_parser("readme", help="regenerate the marked tables of README.md and docs/*.md from benchmarks/results/*.json")
     args = ap.parse_args(argv)
     suites = all_suites()
     if args.cmd == "list":
@@ -88,8 +88,10 @@ def main(argv=None) -> int:
             print(f"{name:{width}s}  {s.description.splitlines()[0]}")
         return 0
     if args.cmd == "readme":
-        done = readme(suites=suites)
-        print(f"README tables regenerated: {', '.join(done) or 'none'}")
+        for path in [REPO_ROOT / "README.md", *sorted((REPO_ROOT / "docs").glob("*.md"))]:
+            done = readme(path, suites=suites)
+            if done:
+                print(f"{path.relative_to(REPO_ROOT)}: tables regenerated: {', '.join(done)}")
         return 0
     if args.cmd == "run":
         if args.name not in suites:

@@ -137,7 +137,7 @@ def write_json(path: Path, obj) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1, allow_nan=False, default=_jsonable) + "\n")
+    tmp.write_text(json.dumps(obj, indent=1, default=_jsonable) + "\n")     # rows: NaN refused by check_rows
     os.replace(tmp, path)
     return path
 

@@ -127,7 +127,7 @@ def readme(results) -> str:
     rows = [{**r, "level": str(r["level"]), "depth_l1_m": "refused" if r.get("refused") else r.get("depth_l1_m")}
             for r in results["rows"]]
     cols = [("level", "level"), ("depth_l1_m", "depth L1 m"), ("depth_psnr_db", "PSNR dB"), ("steps", "steps"),
-            ("wall_s", "wall s"), ("signal_fraction", "signal fraction")]
+            ("wall_s", "wall s", ".1f"), ("signal_fraction", "signal fraction", ".2f")]
     if any("paper_depth_l1_m" in r for r in rows):
         cols.append(("paper_depth_l1_m", "paper L1 m"))
     return report.markdown_table(rows, cols)
