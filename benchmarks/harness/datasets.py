@@ -84,7 +84,7 @@ def cache_problem(out: Path, args) -> str | None:
     if _file_sizes(out) != recorded.get("files"):
         return "cached files changed or missing"
     try:
-        from torch_recon.dataset import load_dataset
+        from torch_recon.contract.dataset import load_dataset
         load_dataset(out)
     except Exception as exc:      # noqa: BLE001 - any failure to open means: make it again
         return f"cached dataset invalid: {exc}"
@@ -95,7 +95,7 @@ def integrate_bins(src, dst, factor: int) -> Path:
     """A new dataset at `dst` whose bins are sums of `factor` adjacent bins of `src` (128 ps -> factor x
     128 ps). Windows are re-aligned to the coarse bins; the pulse width is kept (the laser did not
     change) and the bin width grows by `factor`; ground truth is carried over."""
-    from torch_recon.dataset import DatasetWriter, Transient, TransientLayout, load_dataset
+    from torch_recon.contract.dataset import DatasetWriter, Transient, TransientLayout, load_dataset
     ds = load_dataset(src)
     man = ds.manifest
     s = man.sensor

@@ -80,7 +80,7 @@ def laser_off_frame(ds, seed: int) -> np.ndarray:
 
 
 def run(s: Settings, ctx) -> list[dict]:
-    from torch_recon.dataset import load_dataset
+    from torch_recon.contract.dataset import load_dataset
     from torch_recon.measurements import Measurements
     from torch_recon.rgb_shadow import apply_intensity_shadows, intensity_shadow_masks
 

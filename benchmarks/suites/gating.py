@@ -64,9 +64,9 @@ def _rel_sigma(signal, background, lit) -> float:
 
 def sbr_curve(n_side: int, seed: int = 0):
     from pipeline.sensor_model import apply_sensor
-    from torch_recon.analytic import pulse_bin_weights
-    from torch_recon.dataset import NoiseSpec, SensorSpec, TimeGate
-    from torch_recon.units import ps_to_m
+    from torch_recon.contract.analytic import pulse_bin_weights
+    from torch_recon.contract.dataset import NoiseSpec, SensorSpec, TimeGate
+    from torch_recon.contract.units import ps_to_m
 
     t = 391
     base = dict(width=n_side, height=n_side, bins=t)
@@ -106,7 +106,7 @@ def sbr_curve(n_side: int, seed: int = 0):
 
 def room_samples(sensor, subpixel=2, lo=(-2.0, -1.0, -1.5), hi=(2.0, 4.5, 1.5)):
     """Sub-pixel world positions and normals of a box room seen from inside (smooth, with corners)."""
-    from torch_recon.frames import camera_ray_directions
+    from torch_recon.contract.frames import camera_ray_directions
 
     c2w = np.asarray(sensor.camera_to_world)
     c = c2w[:3, 3]
@@ -128,8 +128,8 @@ def speed(ctx, res: int, repeats: int) -> list[dict]:
     """Rows of binning and sensor-model timings on a box room at res x res."""
     from pipeline.sensor_model import apply_sensor
     from pipeline.transient_binning import bin_two_bounce, expected_return_path
-    from torch_recon.dataset import NoiseSpec, SensorSpec, TimeGate
-    from torch_recon.frames import look_at_c2w
+    from torch_recon.contract.dataset import NoiseSpec, SensorSpec, TimeGate
+    from torch_recon.contract.frames import look_at_c2w
 
     sensor = SensorSpec(width=res, height=res, camera_to_world=look_at_c2w((0, 0, 0), (0, 1, 0)).tolist())
     x, n = room_samples(sensor)

@@ -1,6 +1,6 @@
 """Measurements: preprocessing speed, closed-form visible-depth error, BF Lidar on the cave-chair.
 
-- 'analytic' rows: torch_recon.analytic (trimesh/Embree) transients of the cave-chair geometry (16 paper
+- 'analytic' rows: torch_recon.contract.analytic (trimesh/Embree) transients of the cave-chair geometry (16 paper
   spots, 391 bins of 128 ps, Gaussian 128 ps pulse) rendered in memory spot by spot; preprocessing (first
   bounce, pulse, gate, matched filter, sub-bin peaks, parallel filter, then the fusion of the visible
   depth) timed in-process on dense cubes and on windowed (32-bin) cubes; rendering is not counted.
@@ -41,11 +41,11 @@ def depth_error(depth, gt) -> dict:
 
 def analytic_rows(ctx, s: Settings, res: int, subpixel: int, photons=None, ambient=0.0, seed=0) -> list[dict]:
     """Render spot by spot (a 512^2 x 391 cube is 400 MB); time preprocessing of each, dense and windowed."""
-    from torch_recon.analytic import range_image, render_two_bounce
-    from torch_recon.dataset import Spot, Transient
+    from torch_recon.contract.analytic import range_image, render_two_bounce
+    from torch_recon.contract.dataset import Spot, Transient
     from torch_recon.measurements import Measurements
     from torch_recon.preprocess import PreprocessSettings, process_spot, world_pixel_directions
-    from torch_recon.synthetic import cave_chair_scene, default_sensor, paper_laser_directions
+    from torch_recon.contract.synthetic import cave_chair_scene, default_sensor, paper_laser_directions
     from torch_recon.visible_depth import fuse_visible_depth
 
     mesh, _ = cave_chair_scene()
@@ -89,7 +89,7 @@ def analytic_rows(ctx, s: Settings, res: int, subpixel: int, photons=None, ambie
 
 
 def cycles_rows(ctx, s: Settings, res: int) -> list[dict]:
-    from torch_recon.dataset import load_dataset
+    from torch_recon.contract.dataset import load_dataset
     from torch_recon.measurements import Measurements
     data = ctx.dataset("cave-chair", res, test_views=s.test_views, test_view_resolution=s.test_view_resolution)
     prep = runners.preprocess(ctx, data, f"meas{res}", threads=s.threads)

@@ -1,6 +1,6 @@
 """Reconstructors on ideal measurements: fast mode vs the platonerf mode, and fast-mode parts switched off.
 
-Data: IDEAL measurements of the cave-chair scene (pipeline/scenes.py, 16 of the paper's spots) from the
+Data: IDEAL measurements of the cave-chair scene (torch_recon/contract/scenes.py, 16 of the paper's spots) from the
 analytic ray caster (torch_recon.recon.synthetic_measurements): exact visible depth, exact shadows, exact
 two-bounce paths at pixel centres, saved as a measurements .npz; no simulator or preprocessing error is
 included (the 'fast (cycles)' row fits the Cycles dataset of the same scene and sensor instead, so the
@@ -34,7 +34,7 @@ class Settings:
 
 
 def ideal_npz(ctx, res: int):
-    from pipeline.scenes import cave_chair
+    from torch_recon.contract.scenes import cave_chair
     from torch_recon.recon.synthetic_measurements import ideal_measurements
     with ctx.timed() as t:
         sc = cave_chair()

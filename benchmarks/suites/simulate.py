@@ -2,7 +2,7 @@
 
 Runs pipeline/simulate.py as a user would (a subprocess of the bpy module): wall, CPU and peak memory of
 that process, the simulator's own stage timings, the time of a second run on unchanged inputs (every
-spot reused); then the accuracy against the independent analytic renderer (torch_recon.analytic) on a
+spot reused); then the accuracy against the independent analytic renderer (torch_recon.contract.analytic) on a
 4-spot radiance-unit dataset: peak bin within +-1 bin of the analytic path at the pixel centre, and the
 per-pixel energy ratio. Target: < 2 min and < 4 GB at 512 x 512 on a 2-core CPU.
 """
@@ -40,9 +40,9 @@ def stage_timings(stderr: str) -> dict:
 
 
 def accuracy(path) -> dict:
-    from pipeline import scenes
-    from torch_recon import analytic
-    from torch_recon.dataset import load_dataset
+    from torch_recon.contract import scenes
+    from torch_recon.contract import analytic
+    from torch_recon.contract.dataset import load_dataset
 
     ds = load_dataset(path)
     s = ds.sensor
