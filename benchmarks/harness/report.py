@@ -143,24 +143,25 @@ def write_json(path: Path, obj) -> Path:
 
 
 def plot_rows(rows, path: Path, title: str = "", y: str | None = None, x: str = "wall_s", kind: str = "scatter",
-              label: str = "method") -> Path:
+              label="method") -> Path:
     """The one plot: each row's error `y` (default its first error field) against time `x` (a scatter, one
-    colour per `label` value), or as bars per row (kind='bar')."""
+    colour per label: the row's `label` field, or `label(row)` when callable), or as bars per row (kind='bar')."""
+    name_of = label if callable(label) else (lambda r: str(r.get(label)))
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     y = y or (error_fields(rows) or [x])[0]
     fig, ax = plt.subplots(figsize=(6.5, 4))
     if kind == "bar":
-        names = [f"{r.get(label)}\n{r.get('scene', '')}" for r in rows]
+        names = [f"{name_of(r)}\n{r.get('scene', '')}" for r in rows]
         ax.bar(range(len(rows)), [_num(r.get(y)) for r in rows])
         ax.set_xticks(range(len(rows)), names, fontsize=7, rotation=30, ha="right")
     else:
-        for name in dict.fromkeys(str(r.get(label)) for r in rows):
-            rs = [r for r in rows if str(r.get(label)) == name]
+        for name in dict.fromkeys(map(name_of, rows)):
+            rs = [r for r in rows if name_of(r) == name]
             ax.scatter([_num(r.get(x)) for r in rs], [_num(r.get(y)) for r in rs], label=name)
         ax.set_xlabel(x)
-        if len({str(r.get(label)) for r in rows}) <= 12:
+        if len(set(map(name_of, rows))) <= 12:
             ax.legend(fontsize=7)
     ax.set_ylabel(y)
     ax.set_title(title, fontsize=9)

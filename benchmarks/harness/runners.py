@@ -30,6 +30,20 @@ class Refused(RuntimeError):
     """The entry point refused its input (exit status 2): the message is its one line."""
 
 
+TIMES = ("wall_s", "cpu_s", "peak_rss_mb")
+
+
+def row(method: str, scene: str, result: dict, fields=METRICS, **extra) -> dict:
+    """A results row: method, scene, the result's times, then `extra`, then the result's `fields`."""
+    return {"method": method, "scene": scene, **{k: result.get(k) for k in TIMES}, **extra,
+            **{k: result.get(k) for k in fields}}
+
+
+def refused_row(method: str, scene: str, exc: Exception, **extra) -> dict:
+    """The row of a run the entry point refused: no times, no metrics, its message."""
+    return {"method": method, "scene": scene, **dict.fromkeys(TIMES), **extra, "refused": str(exc)}
+
+
 def _fresh(path: Path) -> Path:
     if path.exists():
         shutil.rmtree(path)
@@ -95,6 +109,7 @@ def fit(ctx, source, out, dataset=None, mode="fast", steps=None, max_seconds=Non
     if mesh is None:        # an empty field exports no mesh: every test-view ray misses
         raise Refused(f"fit wrote no mesh ({report.get('mesh_error', 'no surface at the mesh level')})")
     metrics = evaluate(ctx, mesh, dataset or source, f"{out}-eval", timeout=timeout)
+    _log_result(ctx, out, run, metrics, f"{report.get('steps')} steps, {report.get('stopped')}")
     return {**run.times(), "steps": report.get("steps"), "stopped": report.get("stopped"),
             "train_s": report.get("train_seconds"), **metrics}
 
@@ -108,4 +123,10 @@ def baseline(ctx, source, out, measurements=None, voxels=None, grid_search=False
     cmd += ["--grid-search"] if grid_search else []
     run = _run(ctx, [*cmd, *args], timeout)
     metrics = evaluate(ctx, _mesh_in(out_dir), source, f"{out}-eval", timeout=timeout)
+    _log_result(ctx, out, run, metrics, "BF Lidar")
     return {**run.times(), **metrics}
+
+
+def _log_result(ctx, tag, run, metrics, note):
+    ctx.log(f"  -> {tag}: {run.wall_s:.1f} s ({note}), depth L1 {metrics['depth_l1_m']} m, "
+            f"PSNR {metrics['depth_psnr_db']} dB")

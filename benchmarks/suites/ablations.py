@@ -27,6 +27,7 @@ from benchmarks.harness import Refused, Suite, report, runners
 from benchmarks.harness.datasets import integrated_dataset
 
 PAPER_SPOTS = {16: 0.0862, 8: 0.0912, 4: 0.1347, 2: 0.2147}
+FIELDS = ("depth_l1_m", "depth_psnr_db", "chamfer_m", "fscore", "steps")
 
 
 @dataclass(frozen=True)
@@ -57,24 +58,16 @@ def fit_row(ctx, s: Settings, level, data, prep: dict, tag: str, transform=None,
             meas = transform(meas)
             source = meas.save(ctx.work_dir / f"{tag}-changed.npz")
         prep = {**prep, **runners.combined(prep, t.times())}
-    head = {"method": "fast", "scene": s.example}
     info = {"level": level, "signal_fraction": float(np.mean([np.mean(sp.signal) for sp in meas.spots])), **extra}
     try:
         r = runners.fit(ctx, source, tag, dataset=data, steps=s.steps, max_seconds=s.budget_s,
                         sets=(f"fast.resolution={s.grid}", f"fast.coarse_resolution={max(8, s.grid // 2)}"))
     except Refused as exc:
         ctx.log(f"    {level!s:>24}  refused: {exc}")
-        return {**head, **prep_times(prep), **info, "depth_l1_m": None, "depth_psnr_db": None, "refused": str(exc)}
-    row = {**head, **runners.combined(prep, r), **info, "depth_l1_m": r["depth_l1_m"],
-           "depth_psnr_db": r["depth_psnr_db"], "chamfer_m": r["chamfer_m"], "fscore": r["fscore"],
-           "steps": r["steps"], "preprocess_wall_s": prep["wall_s"]}
-    ctx.log(f"    {level!s:>24}  L1 {r['depth_l1_m']:.4f} m  PSNR {r['depth_psnr_db']:5.2f} dB  "
-            f"wall {row['wall_s']:5.1f} s  signal {row['signal_fraction']:.2f}")
+        return {**runners.row("fast", s.example, prep, ("depth_l1_m", "depth_psnr_db"), **info), "refused": str(exc)}
+    row = runners.row("fast", s.example, {**r, **runners.combined(prep, r)}, FIELDS, **info,
+                      preprocess_wall_s=prep["wall_s"])
     return row
-
-
-def prep_times(prep):
-    return {k: prep[k] for k in ("wall_s", "cpu_s", "peak_rss_mb")}
 
 
 def dataset_row(ctx, s, level, data, tag, **prep_settings) -> dict:
@@ -118,7 +111,7 @@ def scenes(s: Settings, ctx) -> list[dict]:
 
 
 def plot(rows, settings, path):
-    report.plot_rows([{**r, "method": str(r["level"])} for r in rows], path, y="depth_l1_m",
+    report.plot_rows(rows, path, y="depth_l1_m", label="level",
                      title=f"ablation ({settings.example} {settings.resolution} px, grid {settings.grid}, "
                            f"{settings.steps} steps)")
 

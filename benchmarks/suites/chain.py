@@ -14,6 +14,7 @@ from benchmarks.harness import Suite, report, runners
 from benchmarks.harness.datasets import SIMULATE, simulate_args
 
 PAPER = {"depth_l1_m": 0.0862, "depth_psnr_db": 26.58}
+FIELDS = ("evaluate_wall_s", "steps", "depth_l1_m", "depth_psnr_db", "chamfer_m", "fscore", "n_test_views")
 
 
 @dataclass(frozen=True)
@@ -36,18 +37,13 @@ def run(s: Settings, ctx) -> list[dict]:
         sim = ctx.run_cli(["python", SIMULATE, *simulate_args(s.example, res, 16, opts), "--out", data])
         r = runners.fit(ctx, data, f"fit{res}", max_seconds=s.fit_seconds, steps=s.steps, seed=s.seed, uv=True,
                          sets=s.sets)
-        rows.append({"method": "fast", "scene": s.example, "wall_s": r["wall_s"], "cpu_s": r["cpu_s"],
-                     "peak_rss_mb": r["peak_rss_mb"], "resolution": res, "simulate_wall_s": sim.wall_s,
-                     "simulate_cpu_s": sim.cpu_s, "simulate_peak_rss_mb": sim.peak_rss_mb,
-                     "evaluate_wall_s": r["evaluate_wall_s"], "steps": r["steps"],
-                     **{k: r[k] for k in ("depth_l1_m", "depth_psnr_db", "chamfer_m", "fscore", "n_test_views")}})
-        ctx.log(f"  {res} px: simulate {sim.wall_s:.1f} s, fit {r['wall_s']:.1f} s, L1 {r['depth_l1_m']:.4f} m, "
-                f"PSNR {r['depth_psnr_db']:.2f} dB")
+        rows.append(runners.row("fast", s.example, r, FIELDS, resolution=res, simulate_wall_s=sim.wall_s,
+                                simulate_cpu_s=sim.cpu_s, simulate_peak_rss_mb=sim.peak_rss_mb))
     return rows
 
 
 def plot(rows, settings, path):
-    report.plot_rows([{**r, "method": f"fast, {r['resolution']} px"} for r in rows], path, y="depth_l1_m",
+    report.plot_rows(rows, path, y="depth_l1_m", label=lambda r: f"fast, {r['resolution']} px",
                      title=f"{settings.example}, Cycles-simulated, 16 spots; paper L1 {PAPER['depth_l1_m']} m")
 
 

@@ -54,14 +54,10 @@ def run(s: Settings, ctx) -> list[dict]:
                 r = runners.baseline(ctx, data, tag, grid_search=True) if kw is None else runners.fit(ctx, data, tag, **kw)
             except Refused as exc:
                 ctx.log(f"  {scene} {label}: refused: {exc}")
-                rows.append({"method": method, "scene": scene, "wall_s": None, "cpu_s": None, "peak_rss_mb": None,
-                             "label": label, "refused": str(exc)})
+                rows.append(runners.refused_row(method, scene, exc, label=label))
                 continue
-            rows.append({"method": method, "scene": scene, **{k: r[k] for k in ("wall_s", "cpu_s", "peak_rss_mb")},
-                         "label": label, "resolution": s.resolution, "steps": r.get("steps"),
-                         **{k: r[k] for k in ("depth_l1_m", "depth_psnr_db", "chamfer_m", "fscore", "n_test_views")}})
-            ctx.log(f"  {scene} {label:22s} L1 {r['depth_l1_m']:.4f} m  PSNR {r['depth_psnr_db']:5.2f} dB  "
-                    f"wall {r['wall_s']:6.1f} s")
+            rows.append(runners.row(method, scene, r, ("steps", *runners.METRICS), label=label,
+                                    resolution=s.resolution))
     for r in rows:          # the first (cheapest) run of the same method and scene at or below the paper's L1
         hits = [q["wall_s"] for q in rows if q["scene"] == r["scene"] and q["method"] == r["method"]
                 and q.get("depth_l1_m") is not None and q["depth_l1_m"] <= PAPER["depth_l1_m"]]
@@ -70,7 +66,7 @@ def run(s: Settings, ctx) -> list[dict]:
 
 
 def plot(rows, settings, path):
-    report.plot_rows([{**r, "method": f"{r['method']} ({r['scene']})"} for r in rows], path, y="depth_l1_m",
+    report.plot_rows(rows, path, y="depth_l1_m", label=lambda r: f"{r['method']} ({r['scene']})",
                      title=f"{settings.resolution} px, {settings.test_views} test views; paper L1 {PAPER['depth_l1_m']} m")
 
 

@@ -98,12 +98,9 @@ def cycles_rows(ctx, s: Settings, res: int) -> list[dict]:
     b = runners.baseline(ctx, data, f"bflidar{res}", measurements=prep["measurements"], voxels=128, grid_search=True,
                          args=("--threads", s.threads))
     scene = "cave-chair (cycles)"
-    return [{"method": "preprocess (torch_recon preprocess)", "scene": scene,
-             **{k: prep[k] for k in ("wall_s", "cpu_s", "peak_rss_mb")}, "source": "cycles", "resolution": res,
-             "spots": len(meas.spots), **err},
-            {"method": "bflidar (grid search, reused measurements)", "scene": scene,
-             **{k: b[k] for k in ("wall_s", "cpu_s", "peak_rss_mb")}, "source": "cycles", "resolution": res,
-             **{k: b[k] for k in runners.METRICS}}]
+    return [runners.row("preprocess (torch_recon preprocess)", scene, prep, (), source="cycles", resolution=res,
+                        spots=len(meas.spots), **err),
+            runners.row("bflidar (grid search, reused measurements)", scene, b, source="cycles", resolution=res)]
 
 
 def run(s: Settings, ctx) -> list[dict]:

@@ -63,14 +63,10 @@ def run(s: Settings, ctx) -> list[dict]:
         try:
             r = runners.fit(ctx, source, tag, dataset=data, **kw)
         except Refused as exc:
-            rows.append({"method": method, "scene": "cave-chair", "wall_s": None, "cpu_s": None, "peak_rss_mb": None,
-                         "label": label, "refused": str(exc)})
+            rows.append(runners.refused_row(method, "cave-chair", exc, label=label))
             continue
-        rows.append({"method": method, "scene": "cave-chair", **{k: r[k] for k in ("wall_s", "cpu_s", "peak_rss_mb")},
-                     "label": label, "resolution": s.resolution, "grid": s.grid, "steps": r["steps"],
-                     "stopped": r["stopped"], "train_s": r["train_s"],
-                     **{k: r[k] for k in ("depth_l1_m", "depth_psnr_db", "chamfer_m", "fscore", "n_test_views")}})
-        ctx.log(f"  {label:24s} L1 {r['depth_l1_m']:.4f} m  PSNR {r['depth_psnr_db']:5.2f} dB  wall {r['wall_s']:.1f} s")
+        rows.append(runners.row(method, "cave-chair", r, ("steps", "stopped", "train_s", *runners.METRICS),
+                                label=label, resolution=s.resolution, grid=s.grid))
     return rows
 
 
@@ -81,8 +77,8 @@ def readme(results) -> str:
 
 
 SUITE = Suite("recon", __doc__.splitlines()[0], run=run, readme=readme,
-              plot=lambda rows, s, path: report.plot_rows([{**r, "method": r["label"]} for r in rows], path,
-                                                          y="depth_l1_m", title="cave-chair, ideal measurements"),
+              plot=lambda rows, s, path: report.plot_rows(rows, path, y="depth_l1_m", label="label",
+                                                          title="cave-chair, ideal measurements"),
               quick=Settings(resolution=32, grid=48, budget_s=30.0, reference_budget_s=15.0, variants=False,
                              test_views=6, test_view_resolution=32),
               full=Settings())

@@ -31,23 +31,19 @@ def run(s: Settings, ctx) -> list[dict]:
     rows = []
     for v in s.values:
         tag = f"{s.key}={v}".replace("/", "_")
-        base = {"method": "fast", "scene": s.example, "key": s.key, "value": v}
         try:
             r = runners.fit(ctx, ds, tag, steps=s.steps, max_seconds=s.max_seconds, sets=(*s.extra, f"{s.key}={v}"))
         except Refused as exc:
             ctx.log(f"  {tag}: refused: {exc}")
-            rows.append({**base, "wall_s": None, "cpu_s": None, "peak_rss_mb": None, "refused": str(exc)})
+            rows.append(runners.refused_row("fast", s.example, exc, key=s.key, value=v))
             continue
-        rows.append({**base, "wall_s": r["wall_s"], "cpu_s": r["cpu_s"], "peak_rss_mb": r["peak_rss_mb"],
-                     **{k: r[k] for k in ("depth_l1_m", "depth_psnr_db", "chamfer_m", "fscore",
-                                          "n_reconstruction_misses", "steps", "stopped", "train_s")}})
-        ctx.log(f"  {tag}: fit {r['wall_s']:.1f} s ({r['steps']} steps, {r['stopped']}), L1 {r['depth_l1_m']:.4f} m, "
-                f"PSNR {r['depth_psnr_db']:.2f} dB")
+        rows.append(runners.row("fast", s.example, r, (*runners.METRICS, "steps", "stopped", "train_s"),
+                                key=s.key, value=v))
     return rows
 
 
 def plot(rows, settings, path):
-    report.plot_rows([{**r, "method": f"{r['key']}={r['value']}"} for r in rows], path, y="depth_l1_m",
+    report.plot_rows(rows, path, y="depth_l1_m", label=lambda r: f"{r['key']}={r['value']}",
                      title=f"fast mode, {settings.example} {settings.resolution} px: {settings.key} sweep")
 
 
