@@ -111,7 +111,7 @@ def scenes(s: Settings, ctx) -> list[dict]:
 
 
 def plot(rows, settings, path):
-    report.plot_rows(rows, path, y="depth_l1_m", label="level",
+    report.plot_rows(rows, path, y="depth_l1_m", label="level", kind="bar",
                      title=f"ablation ({settings.example} {settings.resolution} px, grid {settings.grid}, "
                            f"{settings.steps} steps)")
 

@@ -43,7 +43,7 @@ def run(s: Settings, ctx) -> list[dict]:
 
 
 def plot(rows, settings, path):
-    report.plot_rows(rows, path, y="depth_l1_m", label=lambda r: f"{r['key']}={r['value']}",
+    report.plot_rows(rows, path, y="depth_l1_m", label=lambda r: f"{r['key']}={r['value']}", kind="bar",
                      title=f"fast mode, {settings.example} {settings.resolution} px: {settings.key} sweep")
 
 
