@@ -15,6 +15,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -28,7 +29,12 @@ DATA_DIR = RESULTS_DIR / "data"          # gitignored: cached datasets and work 
 
 
 class CliError(RuntimeError):
-    """An entry point run by a benchmark exited non-zero or ran past its time limit."""
+    """An entry point run by a benchmark exited non-zero (`returncode`, `last_line` of its output) or ran
+    past its time limit (returncode None)."""
+
+    def __init__(self, message: str, returncode: int | None = None, last_line: str = ""):
+        super().__init__(message)
+        self.returncode, self.last_line = returncode, last_line
 
 
 @dataclass
@@ -118,9 +124,12 @@ def run_cli(args, timeout: float | None = None, check: bool = True, cwd=REPO_ROO
         p = subprocess.Popen(argv, cwd=cwd, stdin=stdin, stdout=out, stderr=err, env=env, start_new_session=True)
         try:
             status, usage = _wait(p.pid, timeout)
-        except (TimeoutError, KeyboardInterrupt):
-            os.killpg(p.pid, signal.SIGKILL)
+        except (TimeoutError, KeyboardInterrupt) as exc:
+            os.killpg(p.pid, signal.SIGKILL)        # the whole process group: no orphaned workers
             os.wait4(p.pid, 0)
+            p.returncode = -signal.SIGKILL
+            if isinstance(exc, TimeoutError):
+                raise CliError(f"{' '.join(argv)}: ran past its {timeout:g} s limit (killed)") from None
             raise
         finally:
             run.wall_s = time.perf_counter() - t0
@@ -131,12 +140,9 @@ def run_cli(args, timeout: float | None = None, check: bool = True, cwd=REPO_ROO
     run.peak_rss_mb = _kib_to_mb(usage.ru_maxrss)
     if check and run.returncode != 0:
         tail = (run.stderr.strip() or run.stdout.strip())[-2000:]
-        raise CliError(f"{' '.join(args_str(args))} exited {run.returncode}:\n{tail}")
+        raise CliError(f"{' '.join(argv)} exited {run.returncode}:\n{tail}", run.returncode,
+                       tail.splitlines()[-1] if tail else "")
     return run
-
-
-def args_str(args) -> list[str]:
-    return [str(a) for a in args]
 
 
 def _wait(pid, timeout):
@@ -147,13 +153,12 @@ def _wait(pid, timeout):
         if done:
             return status, usage
         if deadline is not None and time.monotonic() > deadline:
-            raise TimeoutError(f"ran past its {timeout:g} s limit")
+            raise TimeoutError
         time.sleep(delay)
         delay = min(delay * 2, 0.2)
 
 
 def _temp_text():
-    import tempfile
     return tempfile.TemporaryFile("w+", encoding="utf-8", errors="replace")
 
 
@@ -175,7 +180,7 @@ class Context:
     timed = staticmethod(timed)
 
     def run_cli(self, args, timeout: float | None = None, check: bool = True) -> CliRun:
-        self.log("  $ " + " ".join(args_str(args)))
+        self.log("  $ " + " ".join(map(str, args)))
         return run_cli(args, timeout=timeout, check=check)
 
     def dataset(self, example: str, resolution: int, spots: int = 16, **simulate_options) -> Path:

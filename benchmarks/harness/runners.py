@@ -51,13 +51,13 @@ def _fresh(path: Path) -> Path:
 
 
 def _run(ctx, args, timeout):
-    run = ctx.run_cli(args, timeout=timeout, check=False)
-    if run.returncode == 2:
-        lines = (run.stderr.strip() or run.stdout.strip()).splitlines()
-        raise Refused(lines[-1] if lines else "refused (exit 2)")
-    if run.returncode != 0:
-        raise CliError(f"{' '.join(map(str, args))} exited {run.returncode}:\n{run.stderr.strip()[-2000:]}")
-    return run
+    """ctx.run_cli; exit status 2 (the project's 'bad input': one line) raises Refused."""
+    try:
+        return ctx.run_cli(args, timeout=timeout)
+    except CliError as exc:
+        if exc.returncode == 2:
+            raise Refused(exc.last_line or "refused (exit 2)") from None
+        raise
 
 
 def _mesh_in(folder: Path) -> Path | None:

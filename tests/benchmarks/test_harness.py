@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import pytest
 
-from benchmarks.harness import Suite, report
+from benchmarks.harness import CliError, Suite, report
 from benchmarks.harness.cli import readme, run_suite
 from benchmarks.harness.context import run_cli
 from benchmarks.harness.datasets import cache_problem, integrate_bins, simulate_args
@@ -96,7 +96,7 @@ def test_run_cli_times_a_real_subprocess(tmp_path):
     assert r.returncode == 0 and r.wall_s >= 0.3 and r.cpu_s >= 0.25 and r.peak_rss_mb > 200
     bad = run_cli(["python", "-c", "import sys; print('boom', file=sys.stderr); sys.exit(3)"], check=False)
     assert bad.returncode == 3 and "boom" in bad.stderr
-    with pytest.raises(TimeoutError):
+    with pytest.raises(CliError, match="limit"):
         run_cli(["python", "-c", "import time; time.sleep(30)"], timeout=0.5)
 
 
@@ -143,3 +143,18 @@ def test_integrate_bins_sums_adjacent_bins(tmp_path):
         fine, coarse = a.read_transient(s.id).dense(), b.read_transient(s.id).dense()
         np.testing.assert_allclose(fine.reshape(6, 5, 10, 4).sum(-1), coarse, rtol=1e-5)
     np.testing.assert_array_equal(a.test_views()[2], b.test_views()[2])
+
+
+def test_runner_turns_exit_2_into_refused_and_other_failures_into_cli_error(tmp_path):
+    from benchmarks.harness import Refused, runners
+    from benchmarks.harness.context import Context
+    ctx = Context("fake", quick=True, data_dir=tmp_path, log=lambda m: None)
+    assert ctx.work_dir.is_dir()
+    with pytest.raises(Refused, match="^error: --steps: expected"):
+        runners._run(ctx, ["python", "-c", "import sys; print('error: --steps: expected >= 0', file=sys.stderr); "
+                                           "sys.exit(2)"], None)
+    with pytest.raises(CliError) as err:
+        runners._run(ctx, ["python", "-c", "raise SystemExit(1)"], None)
+    assert err.value.returncode == 1
+    assert runners.combined({"wall_s": 1, "cpu_s": 2, "peak_rss_mb": 30}, {"wall_s": 3, "cpu_s": 1, "peak_rss_mb": 20}) \
+        == {"wall_s": 4, "cpu_s": 3, "peak_rss_mb": 30}
