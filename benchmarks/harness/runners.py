@@ -19,6 +19,7 @@ import shutil
 from pathlib import Path
 
 from benchmarks.harness.context import CliError
+from benchmarks.harness.report import fmt
 
 RECON = ["python", "-m", "torch_recon"]
 #: the evaluate report's fields a benchmark row carries
@@ -128,5 +129,5 @@ def baseline(ctx, source, out, measurements=None, voxels=None, grid_search=False
 
 
 def _log_result(ctx, tag, run, metrics, note):
-    ctx.log(f"  -> {tag}: {run.wall_s:.1f} s ({note}), depth L1 {metrics['depth_l1_m']} m, "
-            f"PSNR {metrics['depth_psnr_db']} dB")
+    ctx.log(f"  -> {tag}: {run.wall_s:.1f} s ({note}), depth L1 {fmt(metrics['depth_l1_m'], '.4f')} m, "
+            f"PSNR {fmt(metrics['depth_psnr_db'], '.2f')} dB")
