@@ -9,6 +9,8 @@ import bpy
 from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, FloatVectorProperty,
                        IntProperty, PointerProperty, StringProperty)
 
+from torch_recon.contract.methods import DEFAULT_FIT_METHOD, METHODS  # on sys.path: addon/__init__.py
+
 
 def _blend_relative_option() -> set:
     """Paths may start with '//' (relative to the .blend): Blender 5.0 wants this declared, older
@@ -118,9 +120,8 @@ class PLATOLIDAR_PG_settings(bpy.types.PropertyGroup):
     recon_dataset_dir: StringProperty(name="Dataset", default="", subtype="DIR_PATH", options=_BLEND_RELATIVE,
                                       description="Dataset to reconstruct (empty: the simulation's folder)")
     recon_out_dir: StringProperty(name="Output Folder", default="//lidar_recon", subtype="DIR_PATH", options=_BLEND_RELATIVE)
-    recon_mode: EnumProperty(name="Mode", default="fast",
-                             items=(("fast", "Fast", "Grid field fit (default, CPU friendly)"),
-                                    ("platonerf", "PlatoNeRF", "The published NeRF method (slow reference)")))
+    recon_mode: EnumProperty(name="Mode", default=DEFAULT_FIT_METHOD,
+                             items=[(m.name, m.label, m.description) for m in METHODS.values() if m.command == "fit"])
     import_path: StringProperty(name="Mesh", default="", subtype="FILE_PATH", options=_BLEND_RELATIVE,
                                 description="Reconstructed mesh (.ply or .obj, Blender world frame)")
     import_color_error: BoolProperty(name="Colour by Error", default=False,
