@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 
-SIMULATE = "pipeline/simulate.py"
 CACHE_STAMP = "bench_cache.json"
 
 
@@ -28,6 +27,12 @@ def simulate_args(example: str, resolution: int, spots: int, options: dict) -> l
     return args
 
 
+def simulate_cli(example: str, resolution: int, spots: int, options: dict, out) -> list[str]:
+    """The simulator's command line for these settings (pipeline.launch: the one way to start it)."""
+    from pipeline.launch import simulate_command
+    return simulate_command([*simulate_args(example, resolution, spots, options), "--out", out])
+
+
 def cached_dataset(ctx, example: str, resolution: int, spots: int, options: dict) -> Path:
     """ctx.dataset: simulate (a subprocess of the real simulator) unless a valid cached copy exists."""
     args = simulate_args(example, resolution, spots, options)
@@ -35,7 +40,7 @@ def cached_dataset(ctx, example: str, resolution: int, spots: int, options: dict
     problem = cache_problem(out, args)
     if problem is not None:
         ctx.log(f"  simulating {' '.join(args)} -> {out.name} ({problem})")
-        run = ctx.run_cli(["python", SIMULATE, *args, "--out", out])
+        run = ctx.run_cli(simulate_cli(example, resolution, spots, options, out))
         _stamp(out, args, {"simulate_wall_s": run.wall_s, "simulate_cpu_s": run.cpu_s,
                            "simulate_peak_rss_mb": run.peak_rss_mb})
     return out

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from benchmarks.harness import Suite, report, runners
-from benchmarks.harness.datasets import SIMULATE, simulate_args
+from benchmarks.harness.datasets import simulate_cli
 
 PAPER = {"depth_l1_m": 0.0862, "depth_psnr_db": 26.58}
 FIELDS = ("evaluate_wall_s", "steps", "depth_l1_m", "depth_psnr_db", "chamfer_m", "fscore", "n_test_views")
@@ -34,7 +34,7 @@ def run(s: Settings, ctx) -> list[dict]:
     for res in s.resolutions:
         data = ctx.work_dir / f"sim{res}"
         opts = {"seed": s.seed, "test_views": s.test_views, "test_view_resolution": s.test_view_resolution}
-        sim = ctx.run_cli(["python", SIMULATE, *simulate_args(s.example, res, 16, opts), "--out", data])
+        sim = ctx.run_cli(simulate_cli(s.example, res, 16, opts, data))
         r = runners.fit(ctx, data, f"fit{res}", max_seconds=s.fit_seconds, steps=s.steps, seed=s.seed, uv=True,
                          sets=s.sets)
         rows.append(runners.row("fast", s.example, r, FIELDS, resolution=res, simulate_wall_s=sim.wall_s,

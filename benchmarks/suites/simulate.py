@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from benchmarks.harness import Suite, report
-from benchmarks.harness.datasets import SIMULATE, simulate_args
+from benchmarks.harness.datasets import simulate_cli
 
 STAGES = ("window_bound_s", "geometry_pass_s", "render_s", "binning_s", "sensor_model_s", "write_s", "ground_truth_s")
 
@@ -71,7 +71,7 @@ def run(s: Settings, ctx) -> list[dict]:
     rows = []
     for res in s.resolutions:
         out = ctx.work_dir / f"ds{res}"
-        cmd = ["python", SIMULATE, *simulate_args(s.example, res, s.spots, {}), "--out", out]
+        cmd = simulate_cli(s.example, res, s.spots, {}, out)
         first = ctx.run_cli(cmd)
         again = ctx.run_cli(cmd)
         rows.append({"method": "cycles", "scene": s.example, **first.times(), "resolution": res, "spots": s.spots,
@@ -81,8 +81,8 @@ def run(s: Settings, ctx) -> list[dict]:
                 f"unchanged re-run {again.wall_s:.1f} s")
     if s.accuracy_resolution:
         out = ctx.work_dir / "accuracy"
-        run_ = ctx.run_cli(["python", SIMULATE, *simulate_args(s.example, s.accuracy_resolution, s.accuracy_spots,
-                                                               {"photons": 0, "no_gt": True}), "--out", out])
+        run_ = ctx.run_cli(simulate_cli(s.example, s.accuracy_resolution, s.accuracy_spots,
+                                        {"photons": 0, "no_gt": True}, out))
         with ctx.timed() as t:
             acc = accuracy(out)
         rows.append({"method": "cycles vs analytic", "scene": s.example, **run_.times(),
