@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import REPO_ROOT
+from benchmarks.harness.context import REPO_ROOT
 from benchmarks.stress_checks import (CheckFailed, NonFinite, check_dataset, fit_checked, preprocess_checked,
                                       smooth_sweep, transient_bytes_equal)
 
