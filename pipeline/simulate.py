@@ -185,7 +185,9 @@ def main() -> int:
     from pipeline import scenes, simulator
     from pipeline.config import ConfigError
     from torch_recon.dataset import DatasetError
+    from torch_recon.dataset.staging import InterruptGuard, describe_os_error
 
+    InterruptGuard.install()      # Ctrl-C / SIGTERM stop the run between renders, the old dataset stays
     try:
         if args.example and args.blend:
             raise simulator.SimulationError("give either a .blend or --example, not both")
@@ -212,12 +214,17 @@ def main() -> int:
             raise simulator.SimulationError("no scene: give a .blend file or --example NAME")
         cfg = load_config(args, bs)
         result = simulator.run(cfg, args.out, label, keep_requested=args.spots is not None)
-    except (ConfigError, DatasetError, bs.SceneError, simulator.SimulationError, FileExistsError) as exc:
+    except (ConfigError, DatasetError, bs.SceneError, simulator.SimulationError) as exc:
         print(f"simulate: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:        # read-only or full disk, an output folder that is not ours: one line
+        print(f"simulate: error: {describe_os_error(exc)}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
-        print("simulate: interrupted; nothing written", file=sys.stderr)
+        print("simulate: interrupted; nothing written, the dataset at --out (if any) is as it was", file=sys.stderr)
         return 130
+    finally:
+        InterruptGuard.uninstall()
     t = result["timings"]
     print(f"simulate: wrote {args.out}: {result['spots']} spots, {cfg.width}x{cfg.height}x{cfg.bins} bins, "
           f"{t['total_s']:.1f} s", file=sys.stderr)

@@ -38,13 +38,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     from .dataset import DatasetError
+    from .dataset.staging import describe_os_error, terminate_as_interrupt
 
     args = build_parser().parse_args(argv)
     try:
-        return int(args.func(args) or 0)
-    except (DatasetError, ValueError, FileNotFoundError, FileExistsError) as exc:
+        with terminate_as_interrupt():
+            return int(args.func(args) or 0)
+    except (DatasetError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:   # read-only folder, full disk, ...: the path and the reason, no traceback
+        print(f"error: {describe_os_error(exc)}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+        print("interrupted; earlier results left as they were", file=sys.stderr)
         return 130

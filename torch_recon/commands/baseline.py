@@ -22,26 +22,62 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from ..dataset import load_dataset
+    from ..dataset.staging import StagedDir
+    from .preprocess import resolve_device
+
+    check_args(args)
+    device = resolve_device(args.device, args.threads)
+    ds = load_dataset(args.dataset)
+    if args.grid_search and ds.manifest.ground_truth.test_views is None:
+        raise ValueError(f"{ds.root}: --grid-search needs ground_truth.test_views in dataset.json")
+    stage = StagedDir(args.out, "baseline", legacy=BASELINE_ENTRIES, marker="mesh.mesh.json")
+    with stage:
+        run_staged(args, ds, device, stage)
+        stage.commit()      # mesh files, sidecar and evaluation replace the previous ones together
+    return 0
+
+
+#: top-level names baselines of earlier versions wrote (they kept no record of them)
+BASELINE_ENTRIES = ("mesh.*", "eval")
+#: BF Lidar keeps about 24 bytes per voxel (counts, probability, occupancy, the blurred copy)
+BYTES_PER_VOXEL = 24
+MAX_VOXELS = 1024
+
+
+def check_args(args):
+    from ..units import format_bytes
+    if args.voxels < 4:
+        raise ValueError(f"--voxels: expected at least 4, got {args.voxels}")
+    if args.voxels > MAX_VOXELS:
+        raise ValueError(f"--voxels {args.voxels}: the carving grid would need about "
+                         f"{format_bytes(BYTES_PER_VOXEL * float(args.voxels) ** 3)} of memory; at most "
+                         f"{MAX_VOXELS} is supported")
+    if not 0.0 < args.occupancy_threshold < 1.0:
+        raise ValueError(f"--occupancy-threshold: expected a probability in (0, 1), got {args.occupancy_threshold}")
+
+
+def run_staged(args, ds, device, stage) -> None:
     import time
-    from pathlib import Path
 
     import numpy as np
 
     from ..bflidar import BFLidarSettings, carve, grid_search
-    from ..dataset import load_dataset
     from ..evaluate import EvalSettings, depth_metrics, evaluate, render_mesh_depth
     from ..measurements import Measurements
     from ..mesh_export import export_mesh
     from ..preprocess import preprocess_dataset
-    from .preprocess import resolve_device, settings_from_args, summarize
+    from .preprocess import settings_from_args, summarize
 
-    device = resolve_device(args.device, args.threads)
-    ds = load_dataset(args.dataset)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = stage.path
     t0 = time.perf_counter()
     if args.measurements:
         meas = Measurements.load(args.measurements)
+        made_from = meas.settings.get("dataset_hash")
+        if made_from is not None and made_from != ds.content_hash():
+            raise ValueError(f"{args.measurements}: measurements were made from another dataset than "
+                             f"{ds.root} (settings.dataset_hash differs); preprocess this dataset or drop "
+                             f"--measurements")
     else:
         meas = preprocess_dataset(ds, settings_from_args(args), device=device, progress=True)
     t_pre = time.perf_counter() - t0
@@ -50,10 +86,7 @@ def run(args) -> int:
     t1 = time.perf_counter()
     table = None
     if args.grid_search:
-        tv = ds.test_views()
-        if tv is None:
-            raise ValueError(f"{ds.root}: --grid-search needs ground_truth.test_views")
-        views, cams, gt = tv
+        views, cams, gt = ds.test_views()
 
         def score(mesh):
             pred = np.stack([render_mesh_depth(mesh, c, views.width, views.height, views.fov_rad, views.fov_axis)
@@ -75,10 +108,9 @@ def run(args) -> int:
     exp = export_mesh(res.occupancy, res.bbox_min, res.bbox_max, res.level, out / "mesh.glb", meta,
                       extra_formats=(".ply", ".obj"))
     print(f"BF Lidar: preprocess {t_pre:.2f} s, carving {t_carve:.2f} s; mesh {exp.n_faces} faces "
-          f"-> {', '.join(str(p) for p in exp.paths)}")
+          f"-> {', '.join(str(stage.final(p)) for p in exp.paths)}")
     if args.evaluate:
         rep = evaluate(ds, out / "eval", mesh=exp.mesh, settings=EvalSettings(), progress=True,
                        extra={"method": "bflidar"})
         print(f"depth L1 {rep['depth_l1_m']} m, PSNR {rep['depth_psnr_db']} dB, Chamfer {rep['chamfer_m']} m, "
               f"F-score {rep['fscore']}")
-    return 0

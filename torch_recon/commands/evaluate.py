@@ -21,17 +21,36 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+#: top-level names evaluations of earlier versions wrote (they kept no record of them)
+EVAL_ENTRIES = ("report.json", "views", "test_depths.npz", "*.png", "*.html")
+
+
 def run(args) -> int:
     from ..dataset import load_dataset
+    from ..dataset.staging import StagedDir
     from ..evaluate import EvalSettings, evaluate
     from ..mesh_export import load_mesh_world
 
+    for flag, v in (("--samples", args.samples), ("--fscore-threshold", args.fscore_threshold)):
+        if not v > 0:
+            raise ValueError(f"{flag}: expected a number > 0, got {v}")
+    if args.error_images < 0:
+        raise ValueError(f"--error-images: expected 0 (none) or every n-th view, got {args.error_images}")
     ds = load_dataset(args.dataset)
+    gt = ds.manifest.ground_truth
+    if gt.test_views is None and gt.mesh_file is None:
+        raise ValueError(f"{ds.root}: the dataset has no ground truth (dataset.json ground_truth.test_views and "
+                         f"mesh_file are empty): nothing to evaluate against; simulate it without --no-gt")
     mesh = load_mesh_world(args.reconstruction)
+    if gt.mesh_file is not None:    # a damaged ground-truth mesh is refused before anything is computed
+        load_mesh_world(ds.path(gt.mesh_file))
     s = EvalSettings(fscore_threshold_m=args.fscore_threshold, n_surface_samples=args.samples,
                      miss_depth=args.miss_depth, seed=args.seed, error_images=args.error_images,
                      cull_back_faces=not args.two_sided)
-    rep = evaluate(ds, args.out, mesh=mesh, settings=s, progress=True, extra={"reconstruction": args.reconstruction})
+    with StagedDir(args.out, "evaluation", legacy=EVAL_ENTRIES, marker="report.json") as st:
+        rep = evaluate(ds, st.path, mesh=mesh, settings=s, progress=True,
+                       extra={"reconstruction": args.reconstruction})
+        st.commit()     # report and images replace the previous evaluation's together, never mixed
 
     def fmt(v, f):
         return "n/a" if v is None else format(v, f)

@@ -28,6 +28,7 @@ import json
 import os
 import shutil
 import uuid
+from contextlib import contextmanager
 from pathlib import Path
 
 RECORD_NAME = ".platolidar-output.json"
@@ -191,3 +192,105 @@ class StagedDir:
             os.replace(self.path, self.target)
             self.committed = True
         return self.target
+
+
+class terminate_as_interrupt:
+    """SIGTERM (and SIGHUP) handled like Ctrl-C inside the block: whatever SIGINT does runs (by default a
+    KeyboardInterrupt), so staging folders and temporary files are cleaned up on the way out."""
+
+    SIGNALS = ("SIGTERM", "SIGHUP")
+
+    def __enter__(self):
+        import signal
+        import threading
+        self._old = {}
+        if threading.current_thread() is not threading.main_thread():
+            return self
+        for name in self.SIGNALS:
+            sig = getattr(signal, name, None)
+            if sig is not None:
+                self._old[sig] = signal.signal(sig, self._handler)
+        return self
+
+    @staticmethod
+    def _handler(signum, frame):
+        import signal
+        h = signal.getsignal(signal.SIGINT)
+        if callable(h) and h is not terminate_as_interrupt._handler:
+            h(signal.SIGINT, frame)
+        else:
+            raise KeyboardInterrupt
+
+    def __exit__(self, *exc):
+        import signal
+        for sig, h in self._old.items():
+            signal.signal(sig, h)
+        return False
+
+
+def describe_os_error(exc: OSError) -> str:
+    """One line for a failed file operation: the path and what went wrong (read-only, disk full, ...)."""
+    if exc.errno is None:          # raised by this project with its own message
+        return str(exc)
+    path = exc.filename if exc.filename is not None else ""
+    what = exc.strerror or str(exc)
+    if exc.errno == errno.ENOSPC:
+        what = "no space left on the device"
+    elif exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        what = f"{exc.strerror or 'permission denied'} (check the folder is writable)"
+    return f"{path}: {what}" if path else what
+
+
+class InterruptGuard:
+    """Ctrl-C and SIGTERM remembered as well as raised, for code that runs inside Blender renders.
+
+    Cycles runs Python's signal handler inside its render callback, where a KeyboardInterrupt is
+    caught and printed by Blender (a traceback) and the render returns as if finished, with a partial
+    image. So renders run inside `deferring()`: the signal is remembered, the render ends, and the
+    KeyboardInterrupt is raised right after it, before its image is used.
+    """
+
+    requested = False
+    _old: dict = {}
+
+    @classmethod
+    def install(cls):
+        import signal
+        import threading
+        if threading.current_thread() is not threading.main_thread():
+            return
+        for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+            sig = getattr(signal, name, None)
+            if sig is not None:
+                cls._old[sig] = signal.signal(sig, cls._handler)
+
+    @classmethod
+    def uninstall(cls):
+        import signal
+        for sig, h in cls._old.items():
+            signal.signal(sig, h)
+        cls._old = {}
+
+    deferred = False
+
+    @classmethod
+    def _handler(cls, signum, frame):
+        cls.requested = True
+        if not cls.deferred:
+            raise KeyboardInterrupt
+
+    @classmethod
+    @contextmanager
+    def deferring(cls):
+        """Inside: a signal is only remembered (a render runs to its end); after: raised if one came."""
+        old, cls.deferred = cls.deferred, True
+        try:
+            yield
+        finally:
+            cls.deferred = old
+        cls.check()
+
+    @classmethod
+    def check(cls):
+        if cls.requested:
+            raise KeyboardInterrupt

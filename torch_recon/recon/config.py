@@ -13,6 +13,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, fields, is_dataclass
 
 MODES = ("fast", "platonerf")
+#: largest grid side a fit accepts (1024^3 voxels: ~43 GB of optimiser state), refused up front with the estimate
+MAX_VOXELS_PER_SIDE = 1024
 
 
 @dataclass
@@ -108,6 +110,26 @@ class FitConfig:
                              "(a coarse level at or above the resolution is skipped)")
         if self.device not in ("auto", "cpu", "cuda"):
             raise ValueError(f"device: expected 'auto', 'cpu' or 'cuda', got {self.device!r}")
+        self._check_ranges()
+
+    def _check_ranges(self):
+        from ..units import format_bytes
+        positive = {"threads": self.threads, "steps": self.steps, "max_seconds": self.max_seconds,
+                    "checkpoint_every_s": self.checkpoint_every_s, "fast.steps": self.fast.steps,
+                    "fast.lr": self.fast.lr, "fast.rays_per_batch": self.fast.rays_per_batch,
+                    "fast.step_voxels": self.fast.step_voxels, "platonerf.steps": self.platonerf.steps,
+                    "platonerf.lr": self.platonerf.lr, "platonerf.rays_per_batch": self.platonerf.rays_per_batch,
+                    "platonerf.volume_resolution": self.platonerf.volume_resolution,
+                    "loss.path_scale_m": self.loss.path_scale_m}
+        for key, v in positive.items():
+            if v is not None and not v > 0:
+                raise ValueError(f"{key}: expected a number > 0, got {v}")
+        for key, n in (("fast.resolution", self.fast.resolution), ("fast.coarse_resolution",
+                       self.fast.coarse_resolution), ("platonerf.volume_resolution", self.platonerf.volume_resolution)):
+            need = 40.0 * n ** 3     # raw density, Adam moments, gradients, occupancy: ~10 float32 per voxel
+            if n > MAX_VOXELS_PER_SIDE:
+                raise ValueError(f"{key}: {n} voxels per side need about {format_bytes(need)} of memory; "
+                                 f"at most {MAX_VOXELS_PER_SIDE} is supported")
 
     @property
     def total_steps(self) -> int:
@@ -139,8 +161,23 @@ def _from_dict(cls, d, path):
         else:
             if is_dataclass(default):
                 raise ValueError(f"{path}.{name}: nested settings not supported here")
-            kw[name] = value
+            kw[name] = _checked_type(value, known[name].type, f"{path}.{name}")
     return cls(**kw)
+
+
+_TYPES = {"int": (int,), "float": (int, float), "bool": (bool,), "str": (str,), "None": (type(None),)}
+
+
+def _checked_type(value, annotation: str, key: str):
+    """`value` if it has the field's type ('int', 'float | None', ...); an int is accepted for a float."""
+    allowed = [t.strip() for t in str(annotation).split("|")]
+    for t in allowed:
+        ok = _TYPES.get(t)
+        if ok is None:
+            return value                       # a type this check does not know: left to the code
+        if isinstance(value, ok) and not (t in ("int", "float") and isinstance(value, bool)):
+            return float(value) if t == "float" else value
+    raise ValueError(f"{key}: expected {' or '.join(allowed)}, got {value!r}")
 
 
 def override(cfg: FitConfig, assignments: list[str]) -> FitConfig:
