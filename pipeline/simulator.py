@@ -242,6 +242,7 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
     t_start = time.perf_counter()
     timings = {}
     check_size(cfg)
+    DatasetWriter.check_target(out_dir)     # an output folder holding others' files: refused before rendering
     scene = bpy.context.scene
     bs.match_viewport_to_render(scene)
     cam = bs.sensor_camera(scene, cfg.camera)

@@ -19,12 +19,13 @@ from __future__ import annotations
 
 import errno
 import json
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from fault_workspace import FIT_FAST, SIGINT, SIGKILL, SIGTERM, run_signalled
+from fault_workspace import FIT_FAST, ROOT, SIGINT, SIGTERM, run_signalled
 
 
 @dataclass
@@ -251,8 +252,7 @@ def simulate_into_dataset_with_user_files(ws):
     ws.write("ds/notes.txt", "my notes")
     ws.write("ds/fit/fit.json", "{}")
     ws.snapshot()
-    return ("sim", ["--example", "cave-chair", "--resolution", "8", "--spots", "2", "--test-views", "0",
-                    "--bins", "200", "--out", ws.ds])
+    return ("sim", [*SIM_SMALL, "--out", ws.ds])
 
 
 def after_sim_user_files(ws):
@@ -263,7 +263,7 @@ def after_sim_user_files(ws):
     assert not ws.leftovers()
 
 
-SIM_SMALL = ["--example", "cave-chair", "--resolution", "8", "--spots", "2", "--test-views", "0", "--bins", "200"]
+SIM_SMALL = ["--example", "cave-chair", "--resolution", "8", "--spots", "2", "--test-views", "0"]
 
 
 def simulate_reuse_truncated(ws):
@@ -356,6 +356,22 @@ def _set(**props):
 def _file_op(**kw):
     def setup(scene, ws):
         return {k: str(v(ws)) if callable(v) else v for k, v in kw.items()}
+    return setup
+
+
+def _prefs(**values):
+    def setup(scene, ws):
+        from addon_fixtures import set_prefs
+        set_prefs(**{k: v(ws) for k, v in values.items()})
+    return setup
+
+
+def both_setup(*setups):
+    def setup(scene, ws):
+        kw = {}
+        for s in setups:
+            kw.update(s(scene, ws) or {})
+        return kw
     return setup
 
 
@@ -557,10 +573,11 @@ CASES = [
          says=("c.json",)),
     Case("addon-load-config-wrong-type", addon_op("load_config", _file_op(
         filepath=lambda ws: ws.write("c.json", '{"bins": "many"}'))), says=("bins",)),
-    Case("addon-export-config-no-folder", addon_op("export_config", _file_op(filepath=W("nodir/c.json"))),
-         says=("nodir",)),
-    Case("addon-reconstruct-not-a-dataset", addon_op("reconstruct", _set(recon_dataset_dir=lambda ws: str(ws.p("e/x").parent))),
-         says=("dataset",)),
+    Case("addon-export-config-no-folder", addon_op("export_config", both_setup(
+        _set(spot_source="RANDOM"), _file_op(filepath=W("nodir/c.json")))), says=("nodir",)),
+    Case("addon-reconstruct-not-a-dataset", addon_op("reconstruct", both_setup(
+        _prefs(python_path=lambda ws: sys.executable, project_dir=lambda ws: str(ROOT)),
+        _set(recon_dataset_dir=lambda ws: str(ws.p("e/x").parent)))), says=("dataset.json",)),
 ]
 
 

@@ -88,8 +88,11 @@ class Measurements:
                 if getattr(s, name) is not None:
                     arrays[f"s{k}_{name}"] = np.asarray(getattr(s, name))
         tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez_compressed(tmp, **arrays)
-        tmp.replace(path)
+        try:                    # whole or not at all: a failed write leaves the earlier file as it was
+            np.savez_compressed(tmp, **arrays)
+            tmp.replace(path)
+        finally:
+            tmp.unlink(missing_ok=True)
         return path
 
     @classmethod

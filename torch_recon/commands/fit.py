@@ -44,6 +44,9 @@ def run(args) -> int:
             raise FileNotFoundError(f"{path}: settings file not found") from None
         except json.JSONDecodeError as exc:
             raise ValueError(f"{path}: not valid JSON ({exc})") from None
+        if not isinstance(base, dict):
+            raise ValueError(f"{path}: expected a JSON object of settings (FitConfig fields), got "
+                             f"{type(base).__name__}")
     cfg = FitConfig.from_dict({**base, "mode": args.mode})
     sets = list(args.set)
     for flag, key in (("steps", "steps"), ("max_seconds", "max_seconds"), ("seed", "seed"), ("device", "device"),

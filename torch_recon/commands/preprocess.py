@@ -84,8 +84,8 @@ def run(args) -> int:
     settings = settings_from_args(args)
     device = resolve_device(args.device, args.threads)
     out = Path(args.out)
-    if out.suffix != ".npz":
-        raise ValueError(f"--out {out}: expected a .npz file name")
+    if out.suffix != ".npz" or out.is_dir():
+        raise ValueError(f"--out {out}: expected a .npz file name" + (" (it is a folder)" if out.is_dir() else ""))
     ds = load_dataset(args.dataset)
     t0 = time.perf_counter()
     meas = preprocess_dataset(ds, settings, device=device, progress=True)

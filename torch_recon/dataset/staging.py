@@ -109,6 +109,14 @@ class StagedDir:
         self.path = self.target.parent / f".{self.target.name}.partial-{os.getpid()}-{uuid.uuid4().hex[:6]}"
         self.path.mkdir()
 
+    @classmethod
+    def check(cls, target, kind: str, legacy: tuple = (), marker: str | None = None, keep: tuple = ()) -> None:
+        """The refusals of the constructor, without creating anything (to refuse before hours of work)."""
+        obj = cls.__new__(cls)
+        obj.target = Path(target).absolute()
+        obj.kind, obj.legacy, obj.marker, obj.keep = kind, tuple(legacy), marker, tuple(keep)
+        obj._check_target()
+
     # ---------------------------------------------------------------- checks
     def _ours(self) -> set | None:
         """Names in the target this program wrote (None: the target is not an output of this kind)."""

@@ -185,6 +185,11 @@ class DatasetWriter:
         self.staging = self._stage.path
         self.committed = False
 
+    @staticmethod
+    def check_target(out_dir) -> None:
+        """Refuse now (FileExistsError) an output folder a writer would refuse later."""
+        StagedDir.check(out_dir, "dataset", legacy=DATASET_ENTRIES, marker=MANIFEST_NAME)
+
     def __enter__(self):
         return self
 
