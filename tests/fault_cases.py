@@ -271,11 +271,13 @@ def simulate_reuse_truncated(ws):
     from fault_workspace import run_simulate
     rc, err = run_simulate([*SIM_SMALL, "--out", ws.root / "sim"])
     assert rc == 0, err
-    f = ws.root / "sim/transients/spot_0000.exr"
+    f = sorted((ws.root / "sim/transients").glob("spot_*.exr"))[0]
     f.write_bytes(f.read_bytes()[:100])
     ws.snapshot()
     rc, err = run_simulate([*SIM_SMALL, "--out", ws.root / "sim"])
-    assert "unchanged, reused" not in next((ln for ln in err.splitlines() if "id 0" in ln), ""), err
+    spot_id = int(f.stem.split("_")[1])
+    line = next((ln for ln in err.splitlines() if f"(id {spot_id}," in ln), "")
+    assert line and "unchanged, reused" not in line, err
     return ("done", rc, err)
 
 
@@ -310,6 +312,7 @@ def after_signal_simulate(ws):
 def signal_fit(sig):
     def run(ws):
         ws.fit
+        ws.npz
         (ws.root / "tmp").mkdir()
         ws.snapshot()
         rc, err = run_signalled(["torch_recon", "fit", ws.npz, "--out", ws.fit, "--steps", "100000", "--threads", "1",
