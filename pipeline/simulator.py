@@ -22,12 +22,14 @@ import bpy
 import numpy as np
 
 from pipeline import blender_scene as bs
-from pipeline import ground_truth, sensor_model, spot_selection, third_bounce, transient_binning
+from pipeline import sensor_model, third_bounce, transient_binning
+from torch_recon.contract import ground_truth, spots
+from torch_recon.contract.errors import PlatolidarError
 from pipeline.cycles_render import EMITTER_OFFSET_M, CyclesRenderer
-from torch_recon.dataset import (DatasetError, DatasetWriter, Manifest, NoiseSpec, Provenance, PulseSpec,
+from torch_recon.contract.dataset import (DatasetError, DatasetWriter, Manifest, NoiseSpec, Provenance, PulseSpec,
                                  SensorSpec, Spot, TimeGate, TransientLayout, load_dataset, transient_relpath)
-from torch_recon.frames import focal_length_px, project_points
-from torch_recon.units import ps_to_m
+from torch_recon.contract.frames import focal_length_px, project_points
+from torch_recon.contract.units import ps_to_m
 
 SIM_VERSION = "1.0"
 LASER_POWER_W = 1.0          # expected values are in units of this power; the sensor model rescales
@@ -35,7 +37,7 @@ RGB_POWER_W = 100.0          # point light of the RGB-shadow images (exposure on
 DEFAULT_ALBEDO = 0.8
 
 
-class SimulationError(RuntimeError):
+class SimulationError(PlatolidarError, RuntimeError):
     """A scene/setting combination that cannot be simulated; the message says which and why."""
 
 
@@ -82,6 +84,8 @@ def plan_spots(cfg, scene, depsgraph, sensor, keep_requested: bool) -> list:
     o = np.asarray(sensor.laser_origin)
     forward = -np.asarray(sensor.camera_to_world)[:3, 2]
     rng = np.random.default_rng(cfg.seed)
+    laser_object = scene.objects.get(cfg.laser_object) if cfg.laser_object else None
+    exclude = (laser_object.original,) if laser_object is not None else ()   # the laser's own housing
     if cfg.spots:
         plans = []
         for i, s in enumerate(cfg.spots):
@@ -99,11 +103,18 @@ def plan_spots(cfg, scene, depsgraph, sensor, keep_requested: bool) -> list:
         if keep_requested and cfg.random_keep > len(pool):
             pool = [p for p, _ in plans]
     else:
-        dirs = spot_selection.random_candidate_directions(cfg.random_candidates, rng, sensor)
-        pool = [SpotPlan(i, f"random_{i}", d) for i, d in enumerate(dirs)]
+        # the same recipe (and seed) as the add-on's "Generate Spots": selection already done
+        targets, _, found = bs.random_spot_targets(scene, depsgraph, sensor, cfg.random_candidates, cfg.random_keep,
+                                                   cfg.seed, exclude)
+        if found < cfg.random_candidates:
+            log(f"warning: only {found} of {cfg.random_candidates} random candidates hit a surface the laser reaches")
+        pool = []
+        for i, t in enumerate(targets):
+            d = (t - o) / np.linalg.norm(t - o)
+            pool.append(SpotPlan(i, f"random_{i}", d))
     hits = []
     for p in pool:
-        hit = bs.ray_cast(scene, depsgraph, o + 1e-4 * p.direction, p.direction)
+        hit = bs.ray_cast(scene, depsgraph, o + 1e-4 * p.direction, p.direction, exclude=exclude)
         if hit is None:
             log(f"warning: spot {p.id} ({p.name}): the laser ray hits nothing; spot skipped")
             continue
@@ -113,11 +124,11 @@ def plan_spots(cfg, scene, depsgraph, sensor, keep_requested: bool) -> list:
         hits.append(p)
     if not hits:
         raise SimulationError("no laser spot hits the scene (check the spot targets and that the scene has geometry)")
-    if keep_requested or not cfg.spots:
+    if keep_requested and cfg.spots:
         k = cfg.random_keep
         if k < len(hits):
-            idx = spot_selection.select_diverse_spots(np.array([p.first_bounce for p in hits]),
-                                                      np.array([p.normal for p in hits]), k, rng)
+            idx = spots.select_diverse_spots(np.array([p.first_bounce for p in hits]),
+                                             np.array([p.normal for p in hits]), k, rng)
             hits = [hits[int(i)] for i in idx]   # selection order: the first k are a spread-out subset
         elif k > len(hits):
             log(f"warning: {k} spots requested, {len(hits)} available")
@@ -313,7 +324,7 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
 
 def _reusable(path, old) -> bool:
     """An earlier run's transient may be reused only if it still reads back whole and valid."""
-    from torch_recon.dataset import read_transient_file
+    from torch_recon.contract.dataset import read_transient_file
     if not path.is_file():
         return False
     try:
@@ -326,7 +337,7 @@ def _reusable(path, old) -> bool:
 
 def check_size(cfg) -> None:
     """Refuse, before anything is built, a sensor no machine can hold (with the estimate)."""
-    from torch_recon.units import transient_size_problem
+    from torch_recon.contract.units import transient_size_problem
 
     problem = transient_size_problem(cfg.width, cfg.height, cfg.bins)
     if problem:

@@ -87,8 +87,8 @@ DELETE = object()
 
 def break_transient(how):
     def prep(ws, mp):
-        from torch_recon.dataset import Transient
-        from torch_recon.dataset.store import write_transient_file
+        from torch_recon.contract.dataset import Transient
+        from torch_recon.contract.dataset.store import write_transient_file
         f = ws.ds / "transients" / "spot_0000.exr"
         if how == "truncated":
             f.write_bytes(f.read_bytes()[: f.stat().st_size // 3])
@@ -282,7 +282,7 @@ def simulate_reuse_truncated(ws):
 
 
 def after_reuse_truncated(ws):
-    from torch_recon.dataset import load_dataset
+    from torch_recon.contract.dataset import load_dataset
     ds = load_dataset(ws.root / "sim")
     for s in ds.manifest.spots:
         ds.read_transient(s.id)

@@ -31,9 +31,9 @@ class FaultData:
     """Inputs shared by every case (never modified: cases work on copies)."""
 
     def __init__(self, root: Path):
-        from torch_recon import synthetic as sy
+        from torch_recon.contract import synthetic as sy
         from torch_recon.cli import main
-        from torch_recon.frames import paper_test_view_cameras
+        from torch_recon.contract.frames import paper_test_view_cameras
 
         self.root = Path(root)
         mesh = sy.box_room_scene()

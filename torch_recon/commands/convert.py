@@ -21,24 +21,25 @@ PLATONERF_ENTRIES = ("transforms_train.json", "transforms_test.json", "transient
 
 
 def run(args) -> int:
-    from ..dataset.platonerf_layout import export_platonerf, import_platonerf
-    from ..dataset.staging import StagedDir
+    from ..contract.dataset import load_dataset
+    from ..contract.dataset.platonerf_layout import export_platonerf, import_platonerf
+    from ..contract.dataset.staging import StagedDir
+    from ..contract.errors import SettingsError
 
-    for flag, v in (("--bin-ps", args.bin_ps), ("--bin-m", args.bin_m), ("--pulse-fwhm-ps", args.pulse_fwhm_ps)):
+    for key, v in (("bin-ps", args.bin_ps), ("bin-m", args.bin_m), ("pulse-fwhm-ps", args.pulse_fwhm_ps)):
         if not v > 0:
-            raise ValueError(f"{flag}: expected a number > 0, got {v}")
+            raise SettingsError(key, f"expected a number > 0, got {v}")
     if args.window_bins is not None and args.window_bins < 1:
-        raise ValueError(f"--window-bins: expected at least 1, got {args.window_bins}")
+        raise SettingsError("window-bins", f"expected at least 1, got {args.window_bins}")
     if args.direction == "from-platonerf":
         ds = import_platonerf(args.src, args.dst, bin_width_ps=args.bin_ps, bin_width_m=args.bin_m,
                               pulse_fwhm_ps=args.pulse_fwhm_ps, window_bins=args.window_bins)
         print(f"imported {len(ds.manifest.spots)} spots -> {ds.root}")
     else:
-        from ..dataset import load_dataset
         ds = load_dataset(args.src)
         with StagedDir(args.dst, "PlatoNeRF layout", legacy=PLATONERF_ENTRIES,
                        marker="transforms_train.json") as st:
-            export_platonerf(ds, st.path)
+            export_platonerf(ds, st.path)     # written whole, then swapped in
             out = st.commit()
         print(f"exported -> {out}")
     return 0
