@@ -120,6 +120,12 @@ class FitConfig:
                 raise SettingsError(f"fast.{key}", f"expected an integer >= 4 (a coarse level at or above the "
                                                    f"resolution is skipped), got {getattr(self.fast, key)}")
         check_device_name(self.device)
+        for key in ("fast.lr", "fast.step_voxels", "fast.rays_per_batch", "platonerf.lr", "platonerf.rays_per_batch",
+                    "loss.path_scale_m"):
+            section, name = key.split(".")
+            v = getattr(getattr(self, section), name)
+            if not v > 0:      # the optimiser would raise deep inside torch
+                raise SettingsError(key, f"expected a value > 0, got {v}")
         for key, n in (("fast.resolution", self.fast.resolution),
                        ("platonerf.volume_resolution", self.platonerf.volume_resolution)):
             if n > MAX_VOXELS_PER_SIDE:      # refused up front, with the estimate, not by an out-of-memory crash

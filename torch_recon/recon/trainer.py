@@ -58,10 +58,10 @@ def load_checkpoint(path: Path, model, gen: torch.Generator, cfg: FitConfig, dat
     try:
         ck = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as exc:  # noqa: BLE001 - torch/pickle raise many kinds for a damaged file
-        raise ValueError(f"{path}: unreadable checkpoint ({type(exc).__name__}); remove it or pass --no-resume") \
-            from None
+        raise CheckpointError(f"{path}: unreadable checkpoint ({type(exc).__name__}); remove it or pass "
+                              f"--no-resume") from None
     if data_key is not None and ck.get("data") != data_key:
-        raise ValueError(f"{path}: checkpoint was made from other data than this source; use another --out "
+        raise CheckpointError(f"{path}: checkpoint was made from other data than this source; use another --out "
                          f"or pass --no-resume to start afresh")
     if ck.get("config") != _config_key(cfg):
         raise CheckpointError(f"{path}: checkpoint was written with other settings; remove it or pass --no-resume")
