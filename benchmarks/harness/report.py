@@ -143,9 +143,10 @@ def write_json(path: Path, obj) -> Path:
 
 
 def plot_rows(rows, path: Path, title: str = "", y: str | None = None, x: str = "wall_s", kind: str = "scatter",
-              label="method") -> Path:
+              label="method", hline: tuple[float, str] | None = None) -> Path:
     """The one plot: each row's error `y` (default its first error field) against time `x` (a scatter, one
-    colour per label: the row's `label` field, or `label(row)` when callable), or as bars per row (kind='bar')."""
+    colour per label: the row's `label` field, or `label(row)` when callable), or as bars per row (kind='bar');
+    `hline` = (value, label): a reference line such as the paper's error."""
     name_of = label if callable(label) else (lambda r: str(r.get(label)))
     import matplotlib
     matplotlib.use("Agg")
@@ -163,6 +164,9 @@ def plot_rows(rows, path: Path, title: str = "", y: str | None = None, x: str = 
         ax.set_xlabel(x)
         if len(set(map(name_of, rows))) <= 12:
             ax.legend(fontsize=7)
+    if hline is not None:
+        ax.axhline(hline[0], color="gray", ls="--", lw=1, label=hline[1])
+        ax.legend(fontsize=7)
     ax.set_ylabel(y)
     ax.set_title(title, fontsize=9)
     ax.grid(alpha=0.3)

@@ -44,6 +44,7 @@ def run(s: Settings, ctx) -> list[dict]:
 
 def plot(rows, settings, path):
     report.plot_rows(rows, path, y="depth_l1_m", label=lambda r: f"fast, {r['resolution']} px",
+                     hline=(PAPER["depth_l1_m"], "paper PlatoNeRF"),
                      title=f"{settings.example}, Cycles-simulated, 16 spots; paper L1 {PAPER['depth_l1_m']} m")
 
 

@@ -66,6 +66,7 @@ def run(s: Settings, ctx) -> list[dict]:
 
 def plot(rows, settings, path):
     report.plot_rows(rows, path, y="depth_l1_m", label=lambda r: f"{r['method']} ({r['scene']})",
+                     hline=(PAPER["depth_l1_m"], "paper PlatoNeRF (512 px, GPU hours)"),
                      title=f"{settings.resolution} px, {settings.test_views} test views; paper L1 {PAPER['depth_l1_m']} m")
 
 
