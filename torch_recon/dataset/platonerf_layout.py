@@ -38,6 +38,7 @@ from .schema import DatasetError, Manifest, NoiseSpec, Provenance, PulseSpec, Se
     TransientLayout, _Checker
 from .store import Dataset, DatasetWriter, _check_array, transient_relpath
 from .transient import Transient
+from ..units import bin_widths_consistent, deg_to_rad, rad_to_deg
 
 TRANSFORMS = "transforms_train.json"
 CONFIG_TXT = "platonerf_config.txt"
@@ -49,7 +50,7 @@ WALL_HALF_EXTENT_M = 0.5
 
 def _camera_angle_x_deg(s: SensorSpec) -> float:
     fov = s.fov_rad if s.fov_axis == "x" else 2.0 * math.atan(math.tan(0.5 * s.fov_rad) * s.width / s.height)
-    return math.degrees(fov)
+    return rad_to_deg(fov)
 
 
 def cube_scale_for(max_value: float) -> float:
@@ -59,8 +60,8 @@ def cube_scale_for(max_value: float) -> float:
     return 2.0 ** (math.log2(FLOAT16_TARGET_MAX) - math.ceil(math.log2(max_value)))
 
 
-def _paper_frame_slots(m: Manifest, s: SensorSpec):
-    """Frame index -> our spot (or None) and its direction, when the spots are the paper's 24.
+def _frame_slots(m: Manifest, s: SensorSpec):
+    """(frame index, our spot or None, direction): the imported frames, the paper's 24, or one per spot.
 
     The paper's scenes index 24 laser targets and keep 16; our datasets keep the simulated ones with
     their index as the spot id. With the paper's sensor and every spot on its paper direction, all 24
@@ -70,6 +71,12 @@ def _paper_frame_slots(m: Manifest, s: SensorSpec):
     from ..synthetic import paper_laser_directions
 
     by_id = {sp.id: sp for sp in m.spots}
+    raw = (m.provenance.extra.get("platonerf") or {}).get("frames") or []
+    if raw and all(sp.id < len(raw) for sp in m.spots):     # imported from their layout: its frames
+        return [(i, by_id.get(i), np.asarray(by_id[i].laser_direction) if i in by_id else
+                 platonerf_train_to_blender_points(np.asarray(r["light_direction"]) /
+                                                   np.linalg.norm(r["light_direction"])))
+                for i, r in enumerate(raw)]
     try:
         dirs = paper_laser_directions(origin=s.laser_origin, used_only=False)
     except (OSError, KeyError, ValueError):
@@ -119,7 +126,7 @@ def export_platonerf(dataset: Dataset | str | os.PathLike, out_dir: str | os.Pat
         raise DatasetError(str(ds.root), "sensor.start_m", f"{s.start_m} m is not a whole number of bins: "
                                                             "their bins start at 0")
     pad = int(round(pad))
-    slots = _paper_frame_slots(m, s)
+    slots = _frame_slots(m, s)
     scale = 1.0
     if sample_type == "float16":
         vmax = max((float(ds.read_transient(sp.id).window.max()) for _, sp, _ in slots if sp is not None),
@@ -164,20 +171,21 @@ def export_platonerf(dataset: Dataset | str | os.PathLike, out_dir: str | os.Pat
                                      else blender_to_platonerf_train_points(sp.first_bounce).tolist()}
         frames.append(fr)
     angle = prior.get("camera_angle_x")
-    if angle is None or math.radians(angle) != s.fov_rad or s.fov_axis != "x":
+    if angle is None or deg_to_rad(angle) != s.fov_rad or s.fov_axis != "x":
         angle = _camera_angle_x_deg(s)
     extras = {k: v for k, v in m.to_dict().items() if k not in ("spots",)}
     extras.update(cube_scale=scale, pad_bins=pad)
-    doc = {"camera_angle_x": angle, "walls": prior.get("walls") if _same_count(prior.get("walls"), walls) else walls,
+    if isinstance(prior.get("walls"), list) and len(raw_frames) == len(frames) and all(
+            "wall_idx_cam" in r and "wall_idx_light" in r for r in raw_frames):   # theirs, as imported
+        walls = prior["walls"]
+        for fr, raw in zip(frames, raw_frames):
+            fr.update(wall_idx_cam=raw["wall_idx_cam"], wall_idx_light=raw["wall_idx_light"])
+    doc = {"camera_angle_x": angle, "walls": walls,
            "ignore": ignore, "frames": frames, "platolidar": extras}
     (out / TRANSFORMS).write_text(json.dumps(doc, indent=4))
     _write_config(out / CONFIG_TXT, m, len(frames) - len(ignore), ignore, s)
     export_ground_truth(ds, out, angle)
     return out
-
-
-def _same_count(a, b) -> bool:
-    return isinstance(a, list) and len(a) == len(b)
 
 
 def _write_config(path: Path, m: Manifest, n_used: int, ignore: list, s: SensorSpec) -> None:
@@ -186,7 +194,7 @@ def _write_config(path: Path, m: Manifest, n_used: int, ignore: list, s: SensorS
     lines = [f"expname = {name}", "basedir = ./logs", f"datadir = ./data/{name}", "dataset_type = dtof",
              f"per_image_thresh = [{','.join(['0.15'] * n_used)}]", f"ignore = [{','.join(map(str, ignore))}]",
              "extract_first = 1", "parallel = 0.05"]
-    if abs(s.bin_width_m - PAPER_BIN_WIDTH_M) > 1e-9:
+    if not bin_widths_consistent(PAPER_BIN_WIDTH_M, s.bin_width_ps):
         lines.insert(0, f"# bins are {s.bin_width_m} m: set TIME_RES_M in their run_platonerf.py to match")
     path.write_text("\n".join(lines) + "\n")
 
@@ -276,7 +284,8 @@ def import_platonerf(src_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
         n = np.linalg.norm(ld)
         if n < 1e-9:
             raise DatasetError(f, f"frames[{i}].light_direction", "zero-length direction")
-        raw_frames.append({k: fr[k] for k in ("file_path", "light_origin", "light_direction") if k in fr})
+        raw_frames.append({k: fr[k] for k in ("file_path", "light_origin", "light_direction", "wall_idx_cam",
+                                              "wall_idx_light") if k in fr})
         if not isinstance(fr["file_path"], str):
             raise DatasetError(f, f"frames[{i}].file_path", "expected a string")
         field = f"frames[{i}].file_path"
@@ -304,7 +313,7 @@ def import_platonerf(src_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
                                                        f"cubes are {h}x{w}x{t} after {pad} padding bins")
     else:
         g = t if window_bins is None else int(window_bins)
-        sensor = SensorSpec(width=w, height=h, fov_rad=math.radians(angle), fov_axis="x",
+        sensor = SensorSpec(width=w, height=h, fov_rad=deg_to_rad(angle), fov_axis="x",
                             camera_to_world=paper_to_blender_c2w(c2w0).tolist(),
                             laser_origin=platonerf_train_to_blender_points(items[0][2]).tolist(),
                             pulse=PulseSpec("gaussian", pulse_fwhm_ps), bin_width_ps=bin_width_ps,
@@ -326,7 +335,8 @@ def import_platonerf(src_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
             rel = wr.write_transient(sid, Transient.from_dense(x, layout.window_bins), layout.sample_type)
             fb = meta.get("first_bounce")
             spots.append(Spot(id=sid, laser_direction=platonerf_train_to_blender_points(ld).tolist(),
-                              transient_file=rel, enabled=bool(meta.get("enabled", i not in skip)),
+                              transient_file=rel,
+                              enabled=i not in skip if ignore is not None else bool(meta.get("enabled", i not in skip)),
                               first_bounce=None if fb is None else platonerf_train_to_blender_points(fb).tolist(),
                               content_hash=meta.get("content_hash")))
         gt = import_ground_truth(src, wr, sensor, train_depth)

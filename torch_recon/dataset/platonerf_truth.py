@@ -21,6 +21,7 @@ import numpy as np
 from ..frames import blender_to_paper_c2w, blender_to_paper_points, paper_to_blender_c2w, paper_to_blender_points
 from .schema import DatasetError, GroundTruth, GroundTruthViews, SensorSpec
 from .store import Dataset, DatasetWriter
+from ..units import deg_to_rad, rad_to_deg
 
 GT_DIR = "ground_truth"
 TRANSFORMS_TEST = "transforms_test.json"
@@ -65,7 +66,7 @@ def export_ground_truth(ds: Dataset, out: Path, angle_deg: float) -> None:
         np.save(out / (TEST_DEPTH.format(i) + ".npy"), _to_theirs(d))
         frames.append({"file_path": TEST_DEPTH.format(i), "transform_matrix": blender_to_paper_c2w(c).tolist()})
     fov = tv.fov_rad if tv.fov_axis == "x" else 2 * math.atan(math.tan(tv.fov_rad / 2) * tv.width / tv.height)
-    (out / TRANSFORMS_TEST).write_text(json.dumps({"camera_angle_x": math.degrees(fov), "frames": frames}, indent=4))
+    (out / TRANSFORMS_TEST).write_text(json.dumps({"camera_angle_x": rad_to_deg(fov), "frames": frames}, indent=4))
 
 
 def _test_views_from_pose_file(src: Path) -> tuple[list, list, float]:
@@ -114,7 +115,7 @@ def import_ground_truth(src: Path, wr: DatasetWriter, sensor: SensorSpec, train_
         if any(d.shape != depths[0].shape for d in depths):
             raise DatasetError(str(src / GT_DIR), "test depth", "test depth images differ in size")
         gt.test_views = GroundTruthViews(width=depths[0].shape[1], height=depths[0].shape[0],
-                                         fov_rad=math.radians(angle), fov_axis="x", camera_to_world=cams,
+                                         fov_rad=deg_to_rad(angle), fov_axis="x", camera_to_world=cams,
                                          depth_file=wr.write_depth("ground_truth/test_depth.exr", np.stack(depths)))
     p = Path(train_depth) if train_depth is not None else src / TRAIN_DEPTH_NPY
     if p.is_file():
