@@ -293,7 +293,7 @@ def import_platonerf(src_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
             continue
         cube = _load_cube(src, fr["file_path"], field)
         if items and cube.shape != items[0][1].shape:
-            raise DatasetError(str(src / fr["file_path"]), field,
+            raise DatasetError(str(src / (fr["file_path"] + ".npy")), field,
                                f"shape {cube.shape} differs from the first frame's {items[0][1].shape}")
         # renormalise only when needed, so our own unit directions round-trip bit-exactly
         items.append((i, cube, lo, ld if abs(n - 1.0) < 1e-12 else ld / n, fr.get("platolidar_spot") or {}))
