@@ -137,6 +137,7 @@ def write_their_real_capture(out, mesh, sensor, laser_dirs, laser_pos_real=(0.25
     out.mkdir(parents=True, exist_ok=True)
     laser = platonerf_train_to_blender_points(np.asarray(laser_pos_real, float))
     sensor.laser_origin = laser.tolist()
+    sensor.bins = 520                                               # every two-bounce path (< 20 m) lands
     two, parts = render_two_bounce(mesh, sensor, laser_dirs, include_first_bounce=False, return_parts=True)
     res = sensor.height
     lit = two.sum(-1) > 0                                           # (S, H, W), image order (row 0 top)
