@@ -25,8 +25,8 @@ SPEED_OF_LIGHT = 2.99792458e8
 
 def paper_room_cubes(res=32, bins=391, ids=range(24), scene=None):
     """Noise-free analytic cubes of the paper's room (Blender frame) for the paper's laser targets `ids`."""
-    from torch_recon.analytic import render_two_bounce
-    from torch_recon.synthetic import box_room_scene, default_sensor, paper_laser_directions
+    from torch_recon.contract.analytic import render_two_bounce
+    from torch_recon.contract.synthetic import box_room_scene, default_sensor, paper_laser_directions
 
     mesh = scene if scene is not None else box_room_scene()
     sensor = default_sensor(width=res, height=res, bins=bins)
@@ -37,8 +37,8 @@ def paper_room_cubes(res=32, bins=391, ids=range(24), scene=None):
 
 def write_paper_dataset(root, ids, enabled_ids, res=32, bins=391, test_cameras=None):
     """Our dataset of the paper's room with spot ids = indices into the paper's 24 targets."""
-    from torch_recon.analytic import range_image
-    from torch_recon.dataset import (DatasetWriter, GroundTruth, GroundTruthViews, Manifest, Provenance, Spot,
+    from torch_recon.contract.analytic import range_image
+    from torch_recon.contract.dataset import (DatasetWriter, GroundTruth, GroundTruthViews, Manifest, Provenance, Spot,
                                      Transient, TransientLayout)
 
     mesh, sensor, dirs, cubes, parts = paper_room_cubes(res, bins, ids)
@@ -120,7 +120,7 @@ def their_loader_view(datadir, ignore=()):
 
 def real_frame_from_blender(p):
     """Fixture choice: the real capture's frame is their training frame (y up, looking down -z)."""
-    from torch_recon.frames import blender_to_platonerf_train_points
+    from torch_recon.contract.frames import blender_to_platonerf_train_points
     return blender_to_platonerf_train_points(p)
 
 
@@ -130,8 +130,8 @@ def write_their_real_capture(out, mesh, sensor, laser_dirs, laser_pos_real=(0.25
     Returns (first bounces (S, 3) Blender, per-pixel lit masks (S, H, W), paths (S, H, W) m, image order)."""
     from scipy.io import savemat
 
-    from torch_recon.analytic import render_two_bounce
-    from torch_recon.frames import platonerf_train_to_blender_points
+    from torch_recon.contract.analytic import render_two_bounce
+    from torch_recon.contract.frames import platonerf_train_to_blender_points
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -147,7 +147,7 @@ def write_their_real_capture(out, mesh, sensor, laser_dirs, laser_pos_real=(0.25
     paths = (np.linalg.norm(ls - laser, axis=1)[:, None, None] + np.linalg.norm(x[None] - ls[:, None, None], axis=-1)
              + np.linalg.norm(x - c, axis=-1)[None])
     t2 = np.where(lit, paths / SPEED_OF_LIGHT, np.nan)
-    from torch_recon.frames import pixel_rays
+    from torch_recon.contract.frames import pixel_rays
     _, d = pixel_rays(sensor.camera_to_world, sensor.width, sensor.height, sensor.fov_rad, sensor.fov_axis)
     dr = real_frame_from_blender(d)                                  # (H, W, 3) their frame
     theta = np.arccos(np.clip(dr[..., 0], -1, 1))                    # d = (cos t, -sin p sin t, cos p sin t)

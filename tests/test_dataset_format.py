@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from conftest import make_synthetic_dataset
-from torch_recon.dataset import DatasetError, DatasetWriter, Manifest, Transient, load_dataset
+from torch_recon.contract.dataset import DatasetError, DatasetWriter, Manifest, Transient, load_dataset
 
 
 def test_round_trip_bit_exact(synthetic_dataset):

@@ -13,9 +13,9 @@ import pytest
 from conftest import make_synthetic_dataset
 from platonerf_fixtures import (their_loader_view, write_paper_dataset, write_their_simulated_layout,
                                 paper_room_cubes)
-from torch_recon.dataset import load_dataset
-from torch_recon.dataset.platonerf_layout import cube_scale_for, export_platonerf, import_platonerf
-from torch_recon.frames import blender_to_paper_points, blender_to_platonerf_train_points, paper_to_blender_points
+from torch_recon.contract.dataset import load_dataset
+from torch_recon.contract.dataset.platonerf_layout import cube_scale_for, export_platonerf, import_platonerf
+from torch_recon.contract.frames import blender_to_paper_points, blender_to_platonerf_train_points, paper_to_blender_points
 
 USED_16 = (4, 5, 6, 7, 8, 9, 11, 12, 14, 15, 16, 17, 18, 19, 21, 23)
 CHAIR_IGNORE = [0, 1, 2, 3, 10, 13, 20, 22]
@@ -70,7 +70,7 @@ def test_their_first_bounce_within_their_bin_rounding(paper_export):
 
 def test_import_as_their_preprocessing_writes(tmp_path):
     """A directory exactly as their preprocess_tof.py writes it, with their ground-truth files."""
-    from torch_recon.synthetic import paper_laser_directions
+    from torch_recon.contract.synthetic import paper_laser_directions
 
     mesh, sensor, dirs, cubes, parts = paper_room_cubes(res=24, bins=391)
     targets = blender_to_paper_points(np.stack([s.first_bounce for s in parts["spots"]]))

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from platonerf_fixtures import real_frame_from_blender, write_their_real_capture
-from torch_recon.dataset import DatasetError, load_dataset
-from torch_recon.dataset.platonerf_real import import_platonerf_real
-from torch_recon.frames import pixel_rays
-from torch_recon.synthetic import box_room_scene, default_sensor, paper_laser_directions
+from torch_recon.contract.dataset import DatasetError, load_dataset
+from torch_recon.contract.dataset.platonerf_real import import_platonerf_real
+from torch_recon.contract.frames import pixel_rays
+from torch_recon.contract.synthetic import box_room_scene, default_sensor, paper_laser_directions
 
 RES = 32
 
@@ -49,7 +49,7 @@ def test_real_capture_preprocess_and_fit(real_capture, tmp_path):
     tmp, mesh, sensor, ls, lit, paths = real_capture
     assert main(["convert", "from-platonerf-real", str(tmp / "mat"), str(tmp_path / "ds")]) == 0
     meas = preprocess_dataset(load_dataset(tmp_path / "ds"))
-    from torch_recon.analytic import range_image
+    from torch_recon.contract.analytic import range_image
     truth = range_image(mesh, sensor.camera_to_world, RES, RES, sensor.fov_rad)
     ok = np.isfinite(meas.visible_depth)
     assert ok.mean() > 0.8

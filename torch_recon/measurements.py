@@ -69,7 +69,7 @@ class Measurements:
         """(H, W, 3) unit world-frame direction of each pixel's ray (from `sensor_origin`)."""
         if self.ray_directions is not None:
             return np.asarray(self.ray_directions, np.float64)
-        from .frames import pixel_rays
+        from .contract.frames import pixel_rays
         return pixel_rays(self.camera_to_world, self.width, self.height, self.fov_rad, self.fov_axis)[1]
 
     def save(self, path) -> Path:

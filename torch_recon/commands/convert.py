@@ -34,7 +34,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..dataset.platonerf_layout import export_platonerf, import_platonerf
+    from ..contract.dataset.platonerf_layout import export_platonerf, import_platonerf
 
     if args.direction == "from-platonerf":
         ds = import_platonerf(args.src, args.dst, bin_width_ps=args.bin_ps, bin_width_m=args.bin_m,
@@ -45,7 +45,7 @@ def run(args) -> int:
         print(f"imported {len(ds.manifest.spots)} spots ({n_on} enabled)"
               + (f", {len(gt.test_views.camera_to_world)} test views" if gt.test_views else "") + f" -> {ds.root}")
     elif args.direction == "from-platonerf-real":
-        from ..dataset.platonerf_real import import_platonerf_real
+        from ..contract.dataset.platonerf_real import import_platonerf_real
 
         ds = import_platonerf_real(args.src, args.dst, spots=args.spots)
         s = ds.sensor

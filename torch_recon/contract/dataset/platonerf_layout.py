@@ -33,12 +33,12 @@ import numpy as np
 
 from ..frames import (blender_to_paper_c2w, blender_to_platonerf_train_points, paper_to_blender_c2w,
                       platonerf_train_to_blender_points)
+from ..units import bin_widths_consistent, deg_to_rad, rad_to_deg
 from .platonerf_truth import export_ground_truth, import_ground_truth
 from .schema import DatasetError, Manifest, NoiseSpec, Provenance, PulseSpec, SensorSpec, Spot, TimeGate, \
     TransientLayout, _Checker
 from .store import Dataset, DatasetWriter, _check_array, transient_relpath
 from .transient import Transient
-from ..units import bin_widths_consistent, deg_to_rad, rad_to_deg
 
 TRANSFORMS = "transforms_train.json"
 CONFIG_TXT = "platonerf_config.txt"

@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from ..frames import blender_to_paper_c2w, blender_to_paper_points, paper_to_blender_c2w, paper_to_blender_points
-from .schema import DatasetError, GroundTruth, GroundTruthViews, SensorSpec
-from .store import Dataset, DatasetWriter
 from ..units import deg_to_rad, rad_to_deg
+from .schema import DatasetError, GroundTruth, SensorSpec
+from .store import Dataset, DatasetWriter
 
 GT_DIR = "ground_truth"
 TRANSFORMS_TEST = "transforms_test.json"
@@ -89,10 +89,10 @@ def _test_views_from_pose_file(src: Path) -> tuple[list, list, float]:
 
 def their_test_cameras(n_views: int) -> np.ndarray:
     """Their test poses (Blender frame) for `n_views` depth files: the last 100 on the orbit."""
-    from ..frames import paper_test_view_cameras
+    from ..ground_truth import test_view_cameras
 
     n_orbit = min(ORBIT_VIEWS, n_views)
-    return paper_test_view_cameras(dolly_count=n_views - n_orbit, orbit_count=n_orbit)
+    return test_view_cameras(n_views - n_orbit, n_orbit)
 
 
 def _test_views_from_depth_files(src: Path) -> tuple[list, list, float]:
@@ -106,6 +106,8 @@ def _test_views_from_depth_files(src: Path) -> tuple[list, list, float]:
 
 
 def import_ground_truth(src: Path, wr: DatasetWriter, sensor: SensorSpec, train_depth=None) -> GroundTruth:
+    from ..ground_truth import write_mesh, write_test_views, write_train_depth
+
     gt = GroundTruth()
     if (src / TRANSFORMS_TEST).is_file():
         cams, depths, angle = _test_views_from_pose_file(src)
@@ -114,15 +116,13 @@ def import_ground_truth(src: Path, wr: DatasetWriter, sensor: SensorSpec, train_
     if depths:
         if any(d.shape != depths[0].shape for d in depths):
             raise DatasetError(str(src / GT_DIR), "test depth", "test depth images differ in size")
-        gt.test_views = GroundTruthViews(width=depths[0].shape[1], height=depths[0].shape[0],
-                                         fov_rad=deg_to_rad(angle), fov_axis="x", camera_to_world=cams,
-                                         depth_file=wr.write_depth("ground_truth/test_depth.exr", np.stack(depths)))
+        gt.test_views = write_test_views(wr, cams, np.stack(depths), deg_to_rad(angle))
     p = Path(train_depth) if train_depth is not None else src / TRAIN_DEPTH_NPY
     if p.is_file():
         d = _to_ours(np.load(p, allow_pickle=False), p, "train depth")
         if d.shape != (sensor.height, sensor.width):
             raise DatasetError(str(p), "train depth", f"expected shape {(sensor.height, sensor.width)}, got {d.shape}")
-        gt.train_depth_file = wr.write_depth("ground_truth/train_depth.exr", d)
+        gt.train_depth_file = write_train_depth(wr, d)
     elif train_depth is not None:
         raise DatasetError(str(p), "train depth", "file is missing")
     p = src / MESH_PLY
@@ -134,6 +134,5 @@ def import_ground_truth(src: Path, wr: DatasetWriter, sensor: SensorSpec, train_
         except Exception as exc:  # noqa: BLE001 - any unreadable mesh is one clear error
             raise DatasetError(str(p), "ground-truth mesh", f"not a readable mesh ({exc})") from None
         mesh.vertices = paper_to_blender_points(mesh.vertices)
-        mesh.export(wr.path("ground_truth/mesh.ply"))
-        gt.mesh_file = "ground_truth/mesh.ply"
+        gt.mesh_file = write_mesh(wr, mesh)
     return gt
