@@ -87,6 +87,20 @@ def write_their_simulated_layout(out, cubes, targets_mitsuba, fov_deg=90, walls=
     return out
 
 
+def their_test_cameras_blender():
+    """Their ground-truth cameras as render_ground_truth.py places them (Mitsuba world: a dolly of 39 from
+    (0, -1.5, 0) in steps of 0.06282 m along z, then 100 on a circle of 0.99 m around (0, -1.5, 3) from
+    -pi/2; all look at (0, -1.5, 3) with up y), as Blender-frame camera-to-world matrices."""
+    from torch_recon.contract.frames import look_at_c2w, paper_to_blender_points
+
+    origins = [(0.0, -1.5, 0.06282151815625667 * i) for i in range(39)]
+    a = np.linspace(-np.pi / 2, -np.pi / 2 + 2 * np.pi, 100, endpoint=False)
+    origins += [(0.99 * np.cos(t), -1.5, 3 + 0.99 * np.sin(t)) for t in a]
+    target = paper_to_blender_points([0.0, -1.5, 3.0])
+    return np.stack([look_at_c2w(paper_to_blender_points(o), target, up=paper_to_blender_points([0, 1, 0]))
+                     for o in origins])
+
+
 def their_loader_view(datadir, ignore=()):
     """What their load_tof_data + run_platonerf.py derive (training frame), re-derived from their conventions."""
     datadir = Path(datadir)

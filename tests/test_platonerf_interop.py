@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from conftest import make_synthetic_dataset
-from platonerf_fixtures import (their_loader_view, write_paper_dataset, write_their_simulated_layout,
-                                paper_room_cubes)
+from platonerf_fixtures import (paper_room_cubes, their_loader_view, their_test_cameras_blender,
+                                write_paper_dataset, write_their_simulated_layout)
 from torch_recon.contract.dataset import load_dataset
 from torch_recon.contract.dataset.platonerf_layout import cube_scale_for, export_platonerf, import_platonerf
 from torch_recon.contract.frames import blender_to_paper_points, blender_to_platonerf_train_points, paper_to_blender_points
@@ -77,8 +77,10 @@ def test_import_as_their_preprocessing_writes(tmp_path):
     write_their_simulated_layout(tmp_path / "pn", cubes * np.float32(1e3), targets)
     gt = tmp_path / "pn" / "ground_truth"
     gt.mkdir()
-    for i in range(139):                                    # their 39 dolly + 100 orbit views
-        np.save(gt / f"depth_{i:04d}.npy", np.full((8, 8), 2.0 + i * 1e-3, np.float32))
+    from torch_recon.contract.analytic import range_image
+    for i, cam in enumerate(their_test_cameras_blender()):   # their 39 dolly + 100 orbit views
+        d = range_image(mesh, cam, 8, 8, math.pi / 2)
+        np.save(gt / f"depth_{i:04d}.npy", np.where(np.isfinite(d), d, 0.0).astype(np.float32))
     np.save(gt / "train_depth.npy", np.where(np.isfinite(parts["range"]), parts["range"], 0).astype(np.float32))
     ds = import_platonerf(tmp_path / "pn", tmp_path / "ours", ignore=CHAIR_IGNORE)
     s = ds.sensor
@@ -97,6 +99,10 @@ def test_import_as_their_preprocessing_writes(tmp_path):
     centre = paper_to_blender_points([0.0, -1.5, 3.0])
     np.testing.assert_allclose(cams[0][:3, 3], paper_to_blender_points([0.0, -1.5, 0.0]), atol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(cams[39:, :3, 3] - centre, axis=1), 0.99, atol=1e-9)
+    from torch_recon.evaluate import evaluate
+    rep = evaluate(ds, tmp_path / "eval", mesh=mesh)        # the true mesh scores ~0 only with the right poses
+    assert rep["n_test_views"] == 139 and rep["depth_l1_m"] < 5e-3
+    np.testing.assert_allclose(cams, their_test_cameras_blender(), atol=1e-9)
     train = ds.train_depth()
     assert np.array_equal(np.isinf(train), ~np.isfinite(parts["range"]))
     # our preprocessing finds their first bounces
