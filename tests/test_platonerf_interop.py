@@ -72,7 +72,7 @@ def test_import_as_their_preprocessing_writes(tmp_path):
     """A directory exactly as their preprocess_tof.py writes it, with their ground-truth files."""
     from torch_recon.contract.synthetic import paper_laser_directions
 
-    mesh, sensor, dirs, cubes, parts = paper_room_cubes(res=24, bins=391)
+    mesh, sensor, dirs, cubes, parts = paper_room_cubes(res=16, bins=391)
     targets = blender_to_paper_points(np.stack([s.first_bounce for s in parts["spots"]]))
     write_their_simulated_layout(tmp_path / "pn", cubes * np.float32(1e3), targets)
     gt = tmp_path / "pn" / "ground_truth"
