@@ -70,3 +70,59 @@ def test_real_capture_refusals(real_capture, tmp_path):
     with pytest.raises(DatasetError, match="illum_pts"):
         import_platonerf_real(tmp / "mat", tmp_path / "y", spots=40)
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+
+
+def _edited(src, dst, edit):
+    import shutil
+
+    shutil.copytree(src, dst)
+    p = dst / "dataset.json"
+    d = json.loads(p.read_text())
+    edit(d)
+    p.write_text(json.dumps(d))
+    return dst
+
+
+MEAS_CASES = {
+    "1.1 fields in a 1.0 manifest": (lambda d: d.update(schema_version="1.0"), "kind"),
+    "no measurement file": (lambda d: d["spots"][0].pop("measurement_file"), "spots[0].measurement_file"),
+    "no first bounce": (lambda d: d["spots"][1].update(first_bounce=None), "spots[1].first_bounce"),
+    "rays with transients": (lambda d: d.update(kind="transients"), "spots[0].transient_file"),
+    "missing ray file": (lambda d: d["sensor"].update(ray_directions_file="sensor/none.exr"),
+                         "sensor.ray_directions_file"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(MEAS_CASES))
+def test_measurements_dataset_refusals(real_capture, tmp_path, case):
+    tmp, *_ = real_capture
+    src = tmp / "ds_for_refusals"
+    if not src.exists():
+        import_platonerf_real(tmp / "mat", src)
+    edit, field = MEAS_CASES[case]
+    with pytest.raises(DatasetError) as ei:
+        load_dataset(_edited(src, tmp_path / "bad", edit))
+    assert field in ei.value.field, str(ei.value)
+
+
+def test_measurement_file_contents_refused(real_capture, tmp_path):
+    from torch_recon.contract.dataset.exr import write_exr
+
+    tmp, *_ = real_capture
+    src = tmp / "ds_for_files"
+    if not src.exists():
+        import_platonerf_real(tmp / "mat", src)
+    ds = load_dataset(_edited(src, tmp_path / "bad", lambda d: None))
+    rel = ds.manifest.spots[0].measurement_file
+    one = np.ones((RES, RES), np.float32)
+    write_exr(ds.root / rel, {"path_m": 0 * one, "lit": one.astype(np.float16), "valid": one.astype(np.float16)})
+    with pytest.raises(DatasetError, match="without a positive two-bounce path"):
+        ds.read_spot_measurement(0)
+    write_exr(ds.root / rel, {"path_m": one, "lit": one.astype(np.float16)})
+    with pytest.raises(DatasetError, match="'valid' missing"):
+        ds.read_spot_measurement(0)
+    write_exr(ds.root / ds.sensor.ray_directions_file, {c: 2 * one for c in "XYZ"})
+    with pytest.raises(DatasetError, match="not unit vectors"):
+        ds.ray_directions()
+    with pytest.raises(DatasetError, match="no transients"):
+        ds.read_transient(0)
