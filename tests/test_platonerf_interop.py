@@ -186,3 +186,22 @@ def test_convert_cli_ignore(tmp_path, paper_export, capsys):
         main(["convert", "from-platonerf", str(out), str(tmp_path / "c"), "--ignore", "4,x"])
     assert ei.value.code == 2
     assert not (tmp_path / "b").exists() and not (tmp_path / "c").exists()
+
+
+def test_training_frame_is_where_their_flipped_pose_lives():
+    """Their training negates rows 0 and 2 of the stored pose; lights are written in that frame."""
+    from torch_recon.contract.frames import (blender_to_paper_c2w, look_at_c2w, pixel_rays,
+                                             platonerf_train_to_blender_points)
+
+    rng = np.random.default_rng(3)
+    c2w = look_at_c2w(rng.normal(size=3), rng.normal(size=3) + [0, 4, 0])
+    stored = blender_to_paper_c2w(c2w)
+    flipped = stored.copy()
+    flipped[0, :] *= -1
+    flipped[2, :] *= -1
+    o, d = pixel_rays(c2w, 4, 3, 1.1)
+    o_t, d_t = pixel_rays(flipped, 4, 3, 1.1)
+    np.testing.assert_allclose(o_t, blender_to_platonerf_train_points(o), atol=1e-12)
+    np.testing.assert_allclose(d_t, blender_to_platonerf_train_points(d), atol=1e-12)
+    p = rng.normal(size=(5, 3))
+    assert platonerf_train_to_blender_points(blender_to_platonerf_train_points(p)).tobytes() == p.tobytes()
