@@ -84,7 +84,7 @@ def test_import_as_their_preprocessing_writes(tmp_path):
     np.save(gt / "train_depth.npy", np.where(np.isfinite(parts["range"]), parts["range"], 0).astype(np.float32))
     ds = import_platonerf(tmp_path / "pn", tmp_path / "ours", ignore=CHAIR_IGNORE)
     s = ds.sensor
-    assert s.fov_rad == pytest.approx(math.pi / 2) and (s.height, s.width, s.bins) == (24, 24, 391)
+    assert s.fov_rad == pytest.approx(math.pi / 2) and (s.height, s.width, s.bins) == (16, 16, 391)
     np.testing.assert_allclose(s.camera_to_world, sensor.camera_to_world, atol=1e-12)
     np.testing.assert_allclose(s.laser_origin, 0.0)
     want = paper_laser_directions(used_only=False)

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .contract.errors import MeasurementsError
+
 
 @dataclass
 class VisibleDepth:
@@ -93,7 +95,7 @@ def visible_points(meas, depth=None, min_confidence: float = 0.0) -> np.ndarray:
     """World points (N, 3) of pixels with a finite fused depth (and confidence >= min_confidence)."""
     depth = meas.visible_depth if depth is None else depth
     if depth is None:
-        raise ValueError("measurements carry no visible depth; run preprocess with compute_visible_depth")
+        raise MeasurementsError("measurements carry no visible depth; run preprocess with compute_visible_depth")
     d = meas.pixel_directions()
     o = np.broadcast_to(meas.sensor_origin, d.shape)
     ok = np.isfinite(depth)

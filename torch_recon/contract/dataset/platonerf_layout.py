@@ -37,7 +37,7 @@ from ..units import bin_widths_consistent, deg_to_rad, rad_to_deg
 from .platonerf_truth import export_ground_truth, import_ground_truth
 from .schema import DatasetError, Manifest, NoiseSpec, Provenance, PulseSpec, SensorSpec, Spot, TimeGate, \
     TransientLayout, _Checker
-from .store import Dataset, DatasetWriter, _check_array, transient_relpath
+from .store import Dataset, DatasetWriter, _check_array, read_json, transient_relpath
 from .transient import Transient
 
 TRANSFORMS = "transforms_train.json"
@@ -249,10 +249,7 @@ def import_platonerf(src_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
     f = str(tpath)
     if not tpath.is_file():
         raise DatasetError(f, "", "transforms_train.json is missing")
-    try:
-        doc = json.loads(tpath.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise DatasetError(f, "", f"not valid JSON ({exc})") from None
+    doc = read_json(tpath)
     if not isinstance(doc, dict):
         raise DatasetError(f, "", "expected a JSON object")
     angle = doc.get("camera_angle_x")
