@@ -178,6 +178,19 @@ def plot_rows(rows, path: Path, title: str = "", y: str | None = None, x: str = 
     return path
 
 
+def paper_result(spots: int = 16) -> dict:
+    """The paper's test-view depth L1 / PSNR with `spots` spots (its supplement's Table 1), from
+    torch_recon.contract.reference, the only copy of the paper's numbers."""
+    from torch_recon.contract.reference import cave
+    r = cave()["paper_figures"]["supplement_table1_spots"][str(spots)]
+    return {"depth_l1_m": r["depth_l1_m"], "depth_psnr_db": r["psnr_db"]}
+
+
+def paper_line() -> tuple[float, str]:
+    """plot_rows(hline=...) of the paper's depth L1."""
+    return paper_result()["depth_l1_m"], "paper PlatoNeRF (16 spots, 512 px, GPU hours)"
+
+
 def _num(v):
     return float("nan") if v is None else v
 
