@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from torch_recon.dataset import SensorSpec
+from torch_recon.contract.dataset import SensorSpec
 from torch_recon.evaluation.objects import ObjectMetricSettings, degenerate_face_count, object_surface_metrics
-from torch_recon.frames import look_at_c2w
+from torch_recon.contract.frames import look_at_c2w
 
 S = ObjectMetricSettings(thresholds_m=(0.005, 0.01, 0.02, 0.05), gt_samples_per_object=8000,
                          recon_samples_per_m2=20_000, scene_samples=30_000)

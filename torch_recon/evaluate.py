@@ -33,8 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .analytic import range_image
-from .frames import camera_ray_directions
+from .contract.analytic import range_image
+from .contract.frames import camera_ray_directions
 
 PSNR_MSE_FLOOR = 1e-10
 

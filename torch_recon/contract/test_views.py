@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..frames import look_at_c2w
+from .frames import look_at_c2w
 
 FREE_SPACE_DIRECTIONS = 200
 BACK_FACE_SHARE = 0.1

@@ -90,8 +90,8 @@ def degenerate_face_count(mesh, area_m2=1e-12) -> int:
 
 def sensor_visible(points, normals, gt_mesh, sensor) -> np.ndarray:
     """Which points the sensor sees: in its field of view, facing it, first along its ray (two-sided GT)."""
-    from ..analytic import first_hits
-    from ..frames import project_points
+    from ..contract.analytic import first_hits
+    from ..contract.frames import project_points
 
     points = np.asarray(points, np.float64).reshape(-1, 3)
     if sensor is None or len(points) == 0:
