@@ -259,9 +259,7 @@ def _load_gt_mesh(dataset):
 
 def _valid_test_views(dataset, gt_mesh, settings, report):
     """The dataset's test views with cameras in free space (others dropped with a warning and counted)."""
-    gt_mesh = _load_gt_mesh(dataset)
-    tv = _valid_test_views(dataset, gt_mesh, settings, report)
-    preds = gt = None
+    tv = dataset.test_views()
     if tv is None:
         return None
     views, cams, gt = tv

@@ -34,10 +34,10 @@ def shaded_render(mesh, c2w, width, height, fov_rad=PICTURE_FOV_RAD, one_sided=T
     return img.reshape(height, width), rng.reshape(height, width)
 
 
-def _free_towards(gt_mesh, start, target, clearance=0.05, steps=12):
-    """The first point on start -> target (evenly stepped) that is in free space (else the target side)."""
+def _free_towards(gt_mesh, start, target, clearance=0.1, steps=40):
+    """The first point on start -> target (evenly stepped, up to 90 %) in free space (else the last)."""
     start, target = np.asarray(start, float), np.asarray(target, float)
-    pts = [start + (target - start) * (i / steps) * 0.8 for i in range(steps + 1)]
+    pts = [start + (target - start) * (i / steps) * 0.9 for i in range(steps + 1)]
     ok, _ = free_space(gt_mesh, pts, clearance)
     return pts[int(np.argmax(ok))] if ok.any() else pts[-1]
 
