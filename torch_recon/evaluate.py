@@ -53,6 +53,8 @@ class EvalSettings:
     density_min_opacity: float = 0.5  # below this accumulated opacity a density ray counts as a miss
     objects: bool = True              # object-level metrics (torch_recon.evaluation.objects)
     pictures: bool = True             # shaded renders, error images, summary.html / summary.png
+    picture_size: int = 192           # pixels per side of each render
+    object_metric_settings: dict | None = None   # ObjectMetricSettings fields (sample densities, thresholds)
     check_test_views: bool = True     # drop (and count) test views whose camera is not in free space
     view_clearance_m: float = 0.005   # ... closer than this to a surface (the paper's orbit passes 1 cm
                                       # from its back wall)
@@ -345,10 +347,12 @@ def evaluate(dataset, out_dir, mesh=None, density=None, bbox_min=None, bbox_max=
         objects, report["objects_source"] = load_gt_objects(dataset, gt_mesh)
         if settings.objects:
             report["object_metrics"] = object_surface_metrics(rec, gt_mesh, objects, dataset.manifest.sensor,
-                                                              ObjectMetricSettings(seed=settings.seed))
+                                                              ObjectMetricSettings(**{"seed": settings.seed,
+                                                                 **(settings.object_metric_settings or {})}))
         if settings.pictures:
             report["pictures"] = write_summary(out_dir, report, gt_mesh, rec, objects,
-                                               dataset.manifest.sensor.camera_to_world, preds, gt)
+                                               dataset.manifest.sensor.camera_to_world, preds, gt,
+                                               size=settings.picture_size)
     report["eval_seconds"] = round(time.perf_counter() - t0, 3)
     tmp = out_dir / ".report.json.partial"
     tmp.write_text(json.dumps(report, indent=1))

@@ -88,8 +88,7 @@ def plot_grid(rows, path, vmax_err=0.25, table_text=None, title=None):
     extra = 1 if table_text else 0
     fig = plt.figure(figsize=(11, 3.3 * n + 3.0 * extra))
     gs = fig.add_gridspec(n + extra, 3, height_ratios=[1] * n + ([0.9] * extra))
-    cmap = matplotlib.colormaps["magma"].copy()
-    cmap.set_bad("#3060a0")
+    cmap = matplotlib.colormaps["magma"].with_extremes(bad="#3060a0")   # blue: the GT ray hits nothing
     for i, (vt, g, r, e) in enumerate(rows):
         for j, (img, t) in enumerate(((g, "ground truth"), (r, "reconstruction"))):
             ax = fig.add_subplot(gs[i, j])
