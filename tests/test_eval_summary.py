@@ -29,7 +29,7 @@ def test_summary_page_written_and_its_pictures_exist(tmp_path):
     # no labels in this dataset: the box is split off the room's shell
     assert r["objects_source"].startswith("split") and len(r["object_metrics"]["objects"]) == 1
     box = next(iter(r["object_metrics"]["objects"].values()))
-    assert box["fscore@2cm"] > 0.95 and box["fscore@5cm"] > 0.999
+    assert box["fscore@2cm"] > 0.95 and box["fscore@5cm"] > 0.99      # light sampling: distances are upper bounds
     for rel in r["pictures"]:
         assert (out / rel).is_file() and (out / rel).stat().st_size > 1000, rel
     html = (out / "summary.html").read_text()
