@@ -2,7 +2,7 @@
 
 Renders are Embree ray casts (torch_recon.contract.analytic.first_hits), one-sided like the evaluation's depth
 (faces seen from behind are passed through), shaded by a headlight: 0.15 + 0.85 |cos| between the view ray
-and the face normal. Viewpoints (`picture_viewpoints`): the sensor's own view, one from behind the objects
+and the face normal, with dark outlines on the near side of depth jumps. Viewpoints (`picture_viewpoints`): the sensor's own view, one from behind the objects
 (the far side of the room), one from under the ceiling looking down, one from inside the room at an angle;
 each is moved towards the objects until it lies in free space (contract.test_views.free_space).
 """
@@ -31,7 +31,26 @@ def shaded_render(mesh, c2w, width, height, fov_rad=PICTURE_FOV_RAD, one_sided=T
         cos = np.abs(np.einsum("ij,ij->i", dirs[hit], mesh.face_normals[tri[hit]]))
         img[hit] = 0.15 + 0.85 * cos
         rng[hit] = dist[hit]
-    return img.reshape(height, width), rng.reshape(height, width)
+    img, rng = img.reshape(height, width), rng.reshape(height, width)
+    return img * silhouette_shade(rng), rng
+
+
+def silhouette_shade(rng, jump=0.03):
+    """0.35 on pixels where the range jumps by more than `jump` (relative) to a neighbour, else 1: outlines
+    that separate a panel from the parallel wall behind it, which a headlight shades alike."""
+    r = np.where(np.isfinite(rng), rng, 1e6)
+    edge = np.zeros(r.shape, bool)
+    for a, b in ((r[1:, :], r[:-1, :]), (r[:, 1:], r[:, :-1])):
+        j = np.abs(a - b) > jump * np.minimum(a, b)
+        e = np.zeros(r.shape, bool)
+        if a.shape[0] < r.shape[0]:
+            e[1:, :] |= j & (a < b)
+            e[:-1, :] |= j & (b < a)
+        else:
+            e[:, 1:] |= j & (a < b)
+            e[:, :-1] |= j & (b < a)
+        edge |= e
+    return np.where(edge, 0.35, 1.0)
 
 
 def _free_towards(gt_mesh, start, target, clearance=0.1, steps=40):
