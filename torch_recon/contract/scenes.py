@@ -192,12 +192,13 @@ def blob(name, base, radius, albedo=OBJECT_ALBEDO, seed=0, subdivisions=3) -> Me
 
 
 def floor_lamp(base=(0.9, 3.0), albedo=OBJECT_ALBEDO, prefix="lamp") -> list:
-    """A floor lamp: thin base plate, a 2.5 cm pole 1.5 m tall, a shade (open box of thin panels)."""
+    """A floor lamp: thin base plate, a 2.5 cm pole, a shade (open box of 1 cm panels) held by a thin bar."""
     x, y = base
     r, t = 0.0125, 0.01
-    parts = [box(f"{prefix}_base", (x - 0.15, y - 0.15, -2.0), (x + 0.15, y + 0.15, -1.98), albedo),
-             box(f"{prefix}_pole", (x - r, y - r, -1.98), (x + r, y + r, -0.5), albedo)]
     h0, h1, w = -0.5, -0.2, 0.2
+    parts = [box(f"{prefix}_base", (x - 0.15, y - 0.15, -2.0), (x + 0.15, y + 0.15, -1.98), albedo),
+             box(f"{prefix}_pole", (x - r, y - r, -1.98), (x + r, y + r, -0.33), albedo),
+             box(f"{prefix}_bar", (x - w + t, y - r, -0.35), (x + w - t, y + r, -0.33), albedo)]
     parts += [box(f"{prefix}_shade_front", (x - w, y - w, h0), (x + w, y - w + t, h1), albedo),
               box(f"{prefix}_shade_back", (x - w, y + w - t, h0), (x + w, y + w, h1), albedo),
               box(f"{prefix}_shade_left", (x - w, y - w + t, h0), (x - w + t, y + w - t, h1), albedo),
