@@ -16,7 +16,7 @@ import json
 from dataclasses import dataclass
 
 from benchmarks.harness import Suite, runners
-from benchmarks.harness.report import fmt
+from benchmarks.harness.report import fmt, markdown_table
 from torch_recon.contract.scenes import OBJECT_SCENES
 
 TIMES = ("wall_s", "cpu_s", "peak_rss_mb")
@@ -82,5 +82,18 @@ def run(s: Settings, ctx) -> list:
     return rows
 
 
+COLUMNS = (("scene", "scene"), ("method", "method"), ("wall_s", "time s", ".0f"),
+           ("depth_l1_m", "L1 m (valid views)", ".4f"), ("depth_psnr_db", "PSNR dB", ".2f"),
+           ("obj_f1cm", "obj F@1cm", ".3f"), ("obj_f2cm", "obj F@2cm", ".3f"), ("obj_f5cm", "obj F@5cm", ".3f"),
+           ("hidden_recall_2cm", "hidden R@2cm", ".3f"), ("spurious", "spurious", ".3f"),
+           ("degenerate_faces", "degenerate faces"), ("n_test_views", "views valid"),
+           ("n_test_views_invalid", "invalid"), ("note", "note"))
+
+
+def readme(results: dict) -> str:
+    """The README table: the issue's target columns, time beside each row (the harness adds provenance)."""
+    return markdown_table(results["rows"], COLUMNS)
+
+
 SUITE = Suite("objects", "object-level accuracy on the labelled example scenes (issue 11 targets)",
-              quick=Settings(methods=("fast",)), full=Settings(), run=run)
+              quick=Settings(methods=("fast",)), full=Settings(), run=run, readme=readme)
