@@ -65,8 +65,8 @@ class EvalSettings:
     picture_size: int = 192           # pixels per side of each render
     object_metric_settings: dict | None = None   # ObjectMetricSettings fields (sample densities, thresholds)
     check_test_views: bool = True     # drop (and count) test views whose camera is not in free space
-    view_clearance_m: float = 0.005   # ... closer than this to a surface (the paper's orbit passes 1 cm
-                                      # from its back wall)
+    view_clearance_m: float = 0.005   # a test camera closer than this to a surface is not in free space
+                                      # (the paper's orbit passes 1 cm from its back wall)
     cull_back_faces: bool = True      # mesh rays pass through faces seen from behind (a test camera just
                                       # inside a reconstructed wall, e.g. the paper's orbit 1 cm from the
                                       # back wall, sees the scene, not the wall's inside); GT stays two-sided
