@@ -33,16 +33,30 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
-    from ..contract.dataset.platonerf_layout import export_platonerf, import_platonerf
+#: top-level names of the PlatoNeRF layout this project writes
+PLATONERF_ENTRIES = ("transforms_train.json", "transforms_test.json", "platonerf_config.txt", "train",
+                     "transients", "ground_truth", "*.json", "*.npy")
 
+
+def run(args) -> int:
+    from ..contract.dataset import load_dataset
+    from ..contract.dataset.platonerf_layout import export_platonerf, import_platonerf
+    from ..contract.dataset.staging import StagedDir
+    from ..contract.errors import SettingsError
+
+    for key, v in (("bin-ps", args.bin_ps), ("bin-m", args.bin_m), ("pulse-fwhm-ps", args.pulse_fwhm_ps)):
+        if not v > 0:
+            raise SettingsError(key, f"expected a number > 0, got {v}")
+    if args.window_bins is not None and args.window_bins < 1:
+        raise SettingsError("window-bins", f"expected at least 1, got {args.window_bins}")
+    if args.spots < 1:
+        raise SettingsError("spots", f"expected at least 1, got {args.spots}")
     if args.direction == "from-platonerf":
         ds = import_platonerf(args.src, args.dst, bin_width_ps=args.bin_ps, bin_width_m=args.bin_m,
                               pulse_fwhm_ps=args.pulse_fwhm_ps, window_bins=args.window_bins, ignore=args.ignore,
                               train_depth=args.train_depth)
-        n_on = len(ds.manifest.enabled_spots)
         gt = ds.manifest.ground_truth
-        print(f"imported {len(ds.manifest.spots)} spots ({n_on} enabled)"
+        print(f"imported {len(ds.manifest.spots)} spots ({len(ds.manifest.enabled_spots)} enabled)"
               + (f", {len(gt.test_views.camera_to_world)} test views" if gt.test_views else "") + f" -> {ds.root}")
     elif args.direction == "from-platonerf-real":
         from ..contract.dataset.platonerf_real import import_platonerf_real
@@ -52,7 +66,10 @@ def run(args) -> int:
         print(f"imported a real capture: {s.width}x{s.height} pixels, {len(ds.manifest.spots)} spots "
               f"(measurements dataset) -> {ds.root}")
     else:
-        out = export_platonerf(args.src, args.dst, sample_type="float32" if args.float32 else "float16")
-        print(f"exported -> {out} (their loader: load_tof_data('{out}', ignore) with ignore from "
-              f"{out / 'platonerf_config.txt'})")
+        ds = load_dataset(args.src)
+        with StagedDir(args.dst, "PlatoNeRF layout", legacy=PLATONERF_ENTRIES,
+                       marker="transforms_train.json") as st:
+            export_platonerf(ds, st.path, sample_type="float32" if args.float32 else "float16")  # whole, then swapped in
+            out = st.commit()
+        print(f"exported -> {out} (their loader: load_tof_data(DIR, ignore) with ignore from platonerf_config.txt)")
     return 0

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import PlatolidarError
-from ..units import bin_widths_consistent, ps_to_m
+from ..units import MAX_SENSOR_SIDE, bin_widths_consistent, ps_to_m, transient_size_problem
 
 SCHEMA_NAME = "platolidar.dataset"
 SCHEMA_VERSION = "1.1"
@@ -194,6 +194,9 @@ class SensorSpec:
                                           f"(= {ps_to_m(s.bin_width_ps):.6f} m of optical path)")
         if s.time_gate.enabled and s.time_gate.window_bins > s.bins:
             ck.fail(f"{path}.time_gate.window_bins", f"window of {s.time_gate.window_bins} bins exceeds bins={s.bins}")
+        too_big = transient_size_problem(s.width, s.height, s.bins)   # refused before anything is allocated
+        if too_big:
+            ck.fail(f"{path}.{'width' if max(s.width, s.height) > MAX_SENSOR_SIDE else 'bins'}", too_big)
         return s
 
 

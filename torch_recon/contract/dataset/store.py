@@ -12,16 +12,18 @@ import hashlib
 import json
 import os
 import shutil
-import uuid
 from pathlib import Path
 
 import numpy as np
 
 from .exr import read_exr, read_exr_channel, write_exr
 from .schema import MANIFEST_NAME, DatasetError, GroundTruthViews, Manifest
+from .staging import StagedDir
 from .transient import Transient
 
 TRANSIENT_DIR = "transients"
+#: top-level names a dataset writer of this project writes (older datasets have no record of them)
+DATASET_ENTRIES = (MANIFEST_NAME, TRANSIENT_DIR, "ground_truth", "rgb", "*.tmp")
 WINDOW_CHANNEL = "w{:04d}"
 
 
@@ -181,8 +183,14 @@ class Dataset:
 
     def content_hash(self) -> str:
         """sha256 over the manifest and every file it names (identifies the data a result came from)."""
-        h = hashlib.sha256()
-        for p in sorted(q for q in self.root.rglob("*") if q.is_file()):
+        m = self.manifest
+        gt = m.ground_truth
+        named = [MANIFEST_NAME, *(f for s in m.spots for f in (s.transient_file, s.measurement_file) if f),
+                 *([m.sensor.ray_directions_file] if m.sensor.ray_directions_file else []), *(m.rgb_files or []),
+                 *(r for r in (gt.train_depth_file, gt.mesh_file) if r),
+                 *([gt.test_views.depth_file] if gt.test_views is not None else [])]
+        h = hashlib.sha256()   # a user's files beside the dataset (notes, fit outputs) do not change it
+        for p in sorted(p for p in {self.root / r for r in named} if p.is_file()):
             h.update(str(p.relative_to(self.root)).encode())
             with open(p, "rb") as f:
                 for chunk in iter(lambda: f.read(1 << 20), b""):
@@ -240,24 +248,22 @@ class DatasetWriter:
 
     def __init__(self, out_dir: str | os.PathLike, overwrite: bool = True):
         self.out_dir = Path(out_dir).absolute()
-        if self.out_dir.exists():
-            if not self.out_dir.is_dir():
-                raise FileExistsError(f"{self.out_dir}: exists and is not a directory")
-            if any(self.out_dir.iterdir()) and not (self.out_dir / MANIFEST_NAME).is_file():
-                raise FileExistsError(f"{self.out_dir}: exists, is not empty and is not a dataset; refusing to replace it")
-            if not overwrite and (self.out_dir / MANIFEST_NAME).is_file():
-                raise FileExistsError(f"{self.out_dir}: a dataset is already there (overwrite=False)")
-        self.out_dir.parent.mkdir(parents=True, exist_ok=True)
-        self.staging = self.out_dir.parent / f".{self.out_dir.name}.partial-{uuid.uuid4().hex[:8]}"
-        self.staging.mkdir()
+        if not overwrite and (self.out_dir / MANIFEST_NAME).is_file():
+            raise FileExistsError(f"{self.out_dir}: a dataset is already there (overwrite=False)")
+        self._stage = StagedDir(self.out_dir, "dataset", legacy=DATASET_ENTRIES, marker=MANIFEST_NAME)
+        self.staging = self._stage.path
         self.committed = False
+
+    @staticmethod
+    def check_target(out_dir) -> None:
+        """Refuse now (FileExistsError) an output folder a writer would refuse later."""
+        StagedDir.check(out_dir, "dataset", legacy=DATASET_ENTRIES, marker=MANIFEST_NAME)
 
     def __enter__(self):
         return self
 
     def __exit__(self, exc_type, exc, tb):
-        if not self.committed:
-            shutil.rmtree(self.staging, ignore_errors=True)
+        self._stage.discard()
         return False
 
     def path(self, rel: str) -> Path:
@@ -315,12 +321,6 @@ class DatasetWriter:
             os.fsync(f.fileno())
         os.replace(tmp, self.staging / MANIFEST_NAME)
         Dataset(self.staging)  # every referenced file exists
-        old = None
-        if self.out_dir.exists():
-            old = self.out_dir.parent / f".{self.out_dir.name}.old-{uuid.uuid4().hex[:8]}"
-            os.replace(self.out_dir, old)
-        os.replace(self.staging, self.out_dir)
+        self._stage.commit()
         self.committed = True
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
         return self.out_dir
