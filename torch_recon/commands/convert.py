@@ -34,7 +34,7 @@ def register(sub) -> None:
 
 
 #: top-level names of the PlatoNeRF layout this project writes
-PLATONERF_ENTRIES = ("transforms_train.json", "transforms_test.json", "platonerf_config.txt", "train",
+PLATONERF_ENTRIES = ("transforms_train.json", "transforms_test.json", "platonerf_config.txt", "train", "test",
                      "transients", "ground_truth", "*.json", "*.npy")
 
 
@@ -71,5 +71,6 @@ def run(args) -> int:
                        marker="transforms_train.json") as st:
             export_platonerf(ds, st.path, sample_type="float32" if args.float32 else "float16")  # whole, then swapped in
             out = st.commit()
-        print(f"exported -> {out} (their loader: load_tof_data(DIR, ignore) with ignore from platonerf_config.txt)")
+        print(f"exported -> {out} (their loader: load_tof_data('{out}', ignore) with ignore from "
+              f"{out / 'platonerf_config.txt'})")
     return 0

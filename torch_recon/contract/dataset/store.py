@@ -185,10 +185,10 @@ class Dataset:
         """sha256 over the manifest and every file it names (identifies the data a result came from)."""
         m = self.manifest
         gt = m.ground_truth
-        named = [MANIFEST_NAME, *(f for s in m.spots for f in (s.transient_file, s.measurement_file) if f),
-                 *([m.sensor.ray_directions_file] if m.sensor.ray_directions_file else []), *(m.rgb_files or []),
-                 *(r for r in (gt.train_depth_file, gt.mesh_file) if r),
+        named = [MANIFEST_NAME, *(s.transient_file for s in m.spots), *(s.measurement_file for s in m.spots),
+                 m.sensor.ray_directions_file, *(m.rgb_files or []), gt.train_depth_file, gt.mesh_file,
                  *([gt.test_views.depth_file] if gt.test_views is not None else [])]
+        named = [r for r in named if r]     # measurements-only datasets name no transients, and vice versa
         h = hashlib.sha256()   # a user's files beside the dataset (notes, fit outputs) do not change it
         for p in sorted(p for p in {self.root / r for r in named} if p.is_file()):
             h.update(str(p.relative_to(self.root)).encode())
