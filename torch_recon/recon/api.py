@@ -84,8 +84,9 @@ def measurements_hash(meas: Measurements) -> str:
     return "measurements:" + h.hexdigest()
 
 
-def load_source(source, progress: bool = True):
-    """Measurements and a hash naming the data: from a Measurements, a .npz, or a dataset directory."""
+def load_source(source, progress: bool = True, device="cpu"):
+    """Measurements and a hash naming the data: from a Measurements, a .npz, or a dataset directory
+    (preprocessed, visible depth included, with torch on `device`)."""
     if isinstance(source, Measurements):
         return source, measurements_hash(source)
     path = Path(source)
@@ -101,7 +102,7 @@ def load_source(source, progress: bool = True):
     from ..preprocess import preprocess_dataset
 
     ds = load_dataset(path)
-    meas = preprocess_dataset(ds)
+    meas = preprocess_dataset(ds, device=device)
     return meas, "dataset:" + ds.content_hash()
 
 
@@ -115,7 +116,7 @@ def fit(source, mode: str = "fast", out=None, config: FitConfig | None = None, o
     torch.set_num_threads(max(1, int(cfg.threads)))
     torch.manual_seed(cfg.seed)
     dev = resolve_device(cfg.device)
-    meas, src_hash = load_source(source, cfg.progress)
+    meas, src_hash = load_source(source, cfg.progress, dev)   # the setup runs on the fit's device too
     data = build_ray_data(meas).to(dev)     # refuses unusable measurements before anything is written
     out_dir = None
     if out is not None:
@@ -135,6 +136,8 @@ def fit(source, mode: str = "fast", out=None, config: FitConfig | None = None, o
                        "device": str(dev), "steps": tr.steps_done, "stopped": tr.stopped,
                        "setup_seconds": round(setup, 3), "train_seconds": round(tr.train_seconds, 3),
                        "nan_restores": tr.nan_restores, "resumed_from": tr.resumed_from}
+    if hasattr(model, "reinit_steps"):
+        result.metadata["reinitialised_after_steps"] = list(model.reinit_steps)
     if out_dir is not None:
         tmp = out_dir / (VOLUME_NAME + ".tmp.npz")
         np.savez_compressed(tmp, opacity=vol.astype(np.float32), bbox_min=lo, bbox_max=hi, level=cfg.mesh_level)

@@ -1,6 +1,21 @@
-"""PlatoNeRF's reconstructor: two NeRF MLPs trained like the authors' code (see docs/reconstruction.md)."""
+"""PlatoNeRF's reconstructor: two NeRF MLPs trained the way the authors' published code trains them.
+
+Reference: facebookresearch/PlatoNeRF, src/run_platonerf.py with configs/chair.txt (read, not copied).
+Per step, for the fine and for the coarse camera depth d (each rendered hierarchically, 64 + 128):
+    path = (d + |l - x| + |l - o|) / 15 with x = c + d u
+    warm-up (lit pairs only):  plain MSE(path, measured / 15)
+    afterwards (all pairs):    6000 MSE(path, measured / 15 | lit)
+                               + MSE(T | shadowed) + MSE(1 - T | lit) for T of the secondary ray x -> l
+                                 through both the fine and the coarse network
+and the loss is 100 x (fine term + coarse term). When the gradient of the coarse network's weights is
+exactly zero after a step (a dead ReLU density: the field is empty and nothing can change that), both
+networks and the optimiser are re-created, from the networks saved every 5000 steps when there are
+such, otherwise from a fresh random initialisation. Deliberate differences: docs/reconstruction.md.
+"""
 
 from __future__ import annotations
+
+import copy
 
 import torch
 
@@ -8,25 +23,30 @@ from .config import FitConfig
 from .data import RayData
 from .fields import GridBox, NeRFField
 from .init import scene_bbox
-from .models import _depth, pair_loss
-from .renderer import render_field
-from .sampler import importance_positions, merged_intervals, ray_box, uniform_intervals
+from .losses import distance_loss, in_warmup, shadow_loss
+from .models import _depth
+from .platonerf_render import render_hierarchical
 
 
 class PlatoNeRFModel:
-    """Two NeRF MLPs (coarse, fine), 64 stratified + 128 importance samples, as published."""
+    """Coarse + fine NeRF density MLPs, hierarchical sampling and the authors' loss and schedule."""
+
+    plateau_stop = False    # the authors' schedule runs all its steps (no early stop)
 
     def __init__(self, data: RayData, cfg: FitConfig, meas_meta: dict, generator: torch.Generator):
         self.data, self.cfg, self.pc = data, cfg, cfg.platonerf
         self.device = data.pixel_dirs.device
-        lo, hi = scene_bbox(data, 0.05)
+        lo, hi = scene_bbox(data, 0.05)     # only for the mesh volume and far_m None
         self.bbox = (torch.as_tensor(lo, device=self.device), torch.as_tensor(hi, device=self.device))
-        centre = 0.5 * (lo + hi)
-        kw = dict(depth=self.pc.depth, width=self.pc.width, skip=self.pc.skip, pe_frequencies=self.pc.pe_frequencies,
-                  centre=centre)
+        self.gen = generator
+        self.reinit_steps: list[int] = []
+        self.saved = None                   # (coarse, fine) state dicts, every reinit_snapshot_every steps
+        self._create()
+
+    def _create(self):
+        kw = dict(depth=self.pc.depth, width=self.pc.width, skip=self.pc.skip, pe_frequencies=self.pc.pe_frequencies)
         self.coarse = NeRFField(**kw).to(self.device)
         self.fine = NeRFField(**kw).to(self.device)
-        self.gen = generator
         self.make_optimizer()
 
     def make_optimizer(self):
@@ -39,56 +59,89 @@ class PlatoNeRFModel:
             g["lr"] = lr
         return False
 
-    def _bounds(self, o, d):
-        near = torch.full_like(o[:, 0], self.pc.near_m)
+    def coarse_weight_grad_norm(self) -> float:
+        """L2 norm of the gradient of the coarse network's layer weights (biases excluded, as theirs)."""
+        sq = [p.grad.pow(2).sum() for n, p in self.coarse.named_parameters()
+              if n.endswith("weight") and p.grad is not None]
+        return float(torch.stack(sq).sum().sqrt()) if sq else 0.0
+
+    def after_step(self, step: int) -> bool:
+        """The authors' re-initialisation; True when it fired. `step` counts the steps done."""
+        if self.pc.reinit_dead and self.coarse_weight_grad_norm() == 0.0:
+            self._create()
+            if self.saved is not None:
+                self.coarse.load_state_dict(self.saved[0])
+                self.fine.load_state_dict(self.saved[1])
+            self.reinit_steps.append(step)
+            return True
+        if self.pc.reinit_snapshot_every > 0 and step % self.pc.reinit_snapshot_every == 0:
+            self.saved = (copy.deepcopy(self.coarse.state_dict()), copy.deepcopy(self.fine.state_dict()))
+        return False
+
+    def _camera_bounds(self, o, d, near_m):
+        near = torch.full_like(o[:, 0], near_m)
         if self.pc.far_m is None:
-            _, far = ray_box(o, d, *self.bbox)
-            far = torch.maximum(far, near + 1e-3)
+            from .sampler import ray_box
+
+            far = torch.maximum(ray_box(o, d, *self.bbox)[1], near + 1e-3)
         else:
             far = torch.full_like(near, self.pc.far_m)
         return near, far
 
-    def _render(self, o, d, near, far, train=True):
-        """(fine RenderOut, coarse RenderOut) with the paper's hierarchical sampling."""
-        t0, t1 = uniform_intervals(near, far, self.pc.coarse_samples, stratified=train, generator=self.gen)
-        coarse = render_field(self.coarse, o, d, t0, t1)
-        extra = importance_positions(t0, t1, coarse.weights, self.pc.fine_samples, deterministic=not train,
-                                     generator=self.gen)
-        f0, f1 = merged_intervals(t0, t1, extra, near, far)
-        return render_field(self.fine, o, d, f0, f1), coarse
-
-    def camera_depths(self, c, dirs):
-        near, far = self._bounds(c, dirs)
-        fine, coarse = self._render(c, dirs, near, far)
-        return [fine.depth, coarse.depth]
-
-    def segment_transmittances(self, o, u, near, far):
-        fine, coarse = self._render(o, u, near, torch.maximum(far, near))
-        return [fine.transmittance, coarse.transmittance]
+    def _render(self, o, d, near, far, train: bool):
+        return render_hierarchical(self.coarse, self.fine, o, d, near, far, self.pc.coarse_samples,
+                                   self.pc.fine_samples, perturb=train, generator=self.gen)
 
     def loss(self, idx, step, total, gen):
-        return pair_loss(self, self.data, idx, step, total, self.cfg, self.cfg.loss.secondary_offset_m)
+        data, lc = self.data, self.cfg.loss
+        px, sp = data.pair_pixel[idx], data.pair_spot[idx]
+        u = data.pixel_dirs[px]
+        c = data.sensor_origin.expand_as(u)
+        l = data.spot_points[sp]
+        lit, shadowed = data.lit[idx], data.shadowed[idx]
+        warm = in_warmup(step, total, lc)
+        near, far = self._camera_bounds(c, u, self.pc.near_m)
+        fine, coarse = self._render(c, u, near, far, train=True)
+        terms, stats = [], {"dist": 0.0, "shadow": 0.0}
+        for depth in (fine.depth, coarse.depth):
+            x = c + u * depth[:, None]
+            v = l - x
+            length = torch.linalg.vector_norm(v, dim=-1)
+            dist = distance_loss(depth + length + data.laser_to_spot[sp], data.path[idx], lit, lc)
+            stats["dist"] += float(dist.detach())
+            if warm:
+                terms.append(dist)          # the warm-up loss is the plain MSE (no distance weight)
+                continue
+            s_near = torch.full_like(length, self.pc.near_m)
+            s_far = torch.maximum(length, s_near)   # theirs would sample backwards on shorter segments
+            f2, c2 = self._render(x, v / length.clamp(min=1e-6)[:, None], s_near, s_far, train=True)
+            shadow = shadow_loss(f2.transmittance, lit, shadowed, lc) + shadow_loss(c2.transmittance, lit, shadowed, lc)
+            stats["shadow"] += float(shadow.detach())
+            terms.append(lc.distance_weight * dist + shadow)
+        return lc.loss_scale * (terms[0] + terms[1]), stats
 
     @torch.no_grad()
-    def render_depth(self, origins, dirs, chunk=2048, min_opacity=None):
-        """The method's own test rendering (64 + 128 samples, fine network); conventions as FastModel."""
+    def render_depth(self, origins, dirs, chunk=4096, min_opacity=None):
+        """Their test rendering (fine network, 64 + 128 deterministic samples from test_near_m to far);
+        min_opacity None: their depth (the last sample takes what is left); else evaluate's convention."""
         out = []
         for i in range(0, origins.shape[0], chunk):
             o, d = origins[i:i + chunk], dirs[i:i + chunk]
-            near, far = self._bounds(o, d)
+            near, far = self._camera_bounds(o, d, self.pc.test_near_m)
             fine, _ = self._render(o, d, near, far, train=False)
-            out.append(_depth(fine, far, min_opacity))
+            out.append(fine.depth if min_opacity is None else _depth(fine, far, min_opacity))
         return torch.cat(out) if out else origins.new_zeros(0)
 
     def density(self, pts):
-        return torch.cat([self.fine(pts[i:i + 65536]) for i in range(0, pts.shape[0], 65536)]) \
-            if pts.shape[0] else pts.new_zeros(0)
+        if not pts.shape[0]:
+            return pts.new_zeros(0)
+        with torch.no_grad():
+            return torch.cat([self.fine(pts[i:i + 65536]) for i in range(0, pts.shape[0], 65536)])
 
     @torch.no_grad()
     def density_volume(self):
         box = GridBox(self.bbox[0].cpu(), self.bbox[1].cpu(), self.pc.volume_resolution).to(self.device)
-        pts = box.centres().reshape(-1, 3)
-        sigma = torch.cat([self.fine(pts[i:i + 65536]) for i in range(0, pts.shape[0], 65536)])
+        sigma = self.density(box.centres().reshape(-1, 3))
         op = 1.0 - torch.exp(-sigma * box.voxel)
         return op.reshape(box.shape).cpu().numpy(), box.bbox_min.cpu().numpy(), box.bbox_max.cpu().numpy()
 
@@ -96,12 +149,15 @@ class PlatoNeRFModel:
         return all(bool(torch.isfinite(p).all()) for p in list(self.coarse.parameters()) + list(self.fine.parameters()))
 
     def state_dict(self):
-        return {"coarse": {k: v.clone() for k, v in self.coarse.state_dict().items()},
-                "fine": {k: v.clone() for k, v in self.fine.state_dict().items()},
-                "optimizer": self.optimizer.state_dict()}
+        clone = lambda sd: {k: v.detach().clone() for k, v in sd.items()}  # noqa: E731
+        return {"coarse": clone(self.coarse.state_dict()), "fine": clone(self.fine.state_dict()),
+                "optimizer": self.optimizer.state_dict(), "saved": self.saved,
+                "reinit_steps": list(self.reinit_steps)}
 
     def load_state_dict(self, st):
         self.coarse.load_state_dict(st["coarse"])
         self.fine.load_state_dict(st["fine"])
         self.make_optimizer()
         self.optimizer.load_state_dict(st["optimizer"])
+        self.saved = st.get("saved")
+        self.reinit_steps = list(st.get("reinit_steps", []))
