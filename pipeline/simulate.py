@@ -182,9 +182,10 @@ def main() -> int:
     import bpy
 
     from pipeline import blender_scene as bs
-    from pipeline import scenes, simulator
+    from pipeline import simulator
+    from torch_recon.contract import scenes
     from pipeline.config import ConfigError
-    from torch_recon.dataset import DatasetError
+    from torch_recon.contract.dataset import DatasetError
 
     try:
         if args.example and args.blend:
