@@ -79,7 +79,8 @@ class PlatoNeRFConfig:
     near_m: float = 0.1               # camera and secondary rays start here (their default --near)
     far_m: float | None = 6.0         # camera rays end here (their fixed far); None: the scene box exit
     test_near_m: float = 0.0          # their test-view rendering starts at 0
-    reinit_dead: bool = True          # re-create both networks when the coarse weights' gradient is 0
+    reinit_dead: str = "both"         # re-create both networks when the weights' gradient of 'coarse'
+                                      # (theirs), of 'either' network ('both', default) is exactly 0; 'off'
     reinit_snapshot_every: int = 5000  # ... from the networks saved this often (their i_weights), if any
     volume_resolution: int = 128      # density sampled on this grid for the mesh
 
@@ -112,6 +113,8 @@ class FitConfig:
         if self.fast.coarse_resolution < 4 or self.fast.resolution < 4:
             raise ValueError("fast.resolution and fast.coarse_resolution must be >= 4 "
                              "(a coarse level at or above the resolution is skipped)")
+        if self.platonerf.reinit_dead not in ("both", "coarse", "off"):
+            raise ValueError(f"platonerf.reinit_dead: expected 'both', 'coarse' or 'off', got {self.platonerf.reinit_dead!r}")
         if self.device not in ("auto", "cpu", "cuda"):
             raise ValueError(f"device: expected 'auto', 'cpu' or 'cuda', got {self.device!r}")
 
