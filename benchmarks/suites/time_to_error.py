@@ -149,10 +149,10 @@ def reference_rows():
 
 
 def run(settings: Settings, ctx) -> list[dict]:
-    from torch_recon.recon.api import resolve_device
+    from torch_recon.device import resolve_device
 
     ds = ctx.dataset(settings.example, settings.resolution, settings.spots)
-    device = str(resolve_device(settings.device))
+    device = str(resolve_device(settings.device, settings.threads))
     views, cams, gt = _test_views(ds, settings.view_stride)
     ctx.log(f"  {len(cams)} test views of {views.width} x {views.height}, device {device}")
     score = _scorer(views, cams, gt, device)
