@@ -38,6 +38,7 @@ class Settings:
     device: str = "cpu"                    # 'cpu', 'cuda' or 'auto' (the fit's device setting)
     threads: int = 2
     view_stride: int = 1                   # every n-th test view (both methods see the same ones)
+    pixel_stride: int = 1                  # every n-th pixel of each view, in rows and columns
     fast_steps: int | None = None          # None: the fast mode's default
     fast_eval_every_s: float = 5.0
     platonerf_budget_s: float = 1800.0     # training seconds (their full schedule is 200k steps)
@@ -57,18 +58,21 @@ def _test_views(ds_path, stride):
     return views, cams[::stride], gt[::stride]
 
 
-def _scorer(views, cams, gt, device):
+def _scorer(views, cams, gt, device, stride):
+    import numpy as np
+
     from torch_recon.evaluate import EvalSettings, depth_metrics, render_density_depth
 
     es = EvalSettings()
+    rows, cols = np.meshgrid(np.arange(0, views.height, stride), np.arange(0, views.width, stride), indexing="ij")
+    pixels = (rows * views.width + cols).reshape(-1)
+    gt_px = gt.reshape(len(cams), 1, -1)[:, :, pixels]
 
     def score(model, bbox_min, bbox_max):
-        import numpy as np
-
         preds = np.stack([render_density_depth(model.density, c, views.width, views.height, views.fov_rad,
                                                bbox_min, bbox_max, views.fov_axis, es.density_samples,
-                                               es.density_min_opacity, device) for c in cams])
-        m = depth_metrics(preds, gt, es.miss_depth)
+                                               es.density_min_opacity, device, pixels=pixels)[None] for c in cams])
+        m = depth_metrics(preds, gt_px, es.miss_depth)
         return {"depth_l1_m": m["depth_l1_m"], "depth_psnr_db": m["depth_psnr_db"], "hit_fraction": m["hit_fraction"]}
     return score
 
@@ -120,17 +124,26 @@ def _fit_curve(ctx, ds_path, mode, settings, score):
     return rows, r
 
 
-def _seconds_per_step_after_warmup(ds_path, settings, steps):
-    """Seconds per step of the full platonerf loss (shadow terms on), from a short run with no warm-up."""
+def _seconds_per_step_after_warmup(ctx, ds_path, settings, steps):
+    """Seconds per step of the full platonerf loss (shadow terms on), from a short run with no warm-up,
+    in a subprocess (a step holds several GB of activations on a CPU; an out-of-memory kill gives None)."""
+    run = ctx.run_cli(["python", "-m", "benchmarks.suites.time_to_error", str(ds_path), settings.device,
+                       str(settings.threads), str(steps)], check=False)
+    if run.returncode != 0:
+        ctx.log(f"  platonerf step timing failed (exit {run.returncode}): {run.stderr.strip()[-300:]}")
+        return None, run.peak_rss_mb
+    return float(run.stdout.strip().splitlines()[-1]), run.peak_rss_mb
+
+
+def _time_steps(ds_path, device, threads, steps):
     from torch_recon.recon import FitConfig, fit
 
-    cfg = FitConfig(mode="platonerf", device=settings.device, threads=settings.threads, progress=False,
-                    resume=False, steps=steps)
+    cfg = FitConfig(mode="platonerf", device=device, threads=threads, progress=False, resume=False, steps=steps)
     cfg.loss.warmup_fraction = 0.0
     cfg.platonerf.volume_resolution = 8
     r = fit(str(ds_path), mode="platonerf", config=cfg, export=False)
     h = r.train.history
-    return (h[-1]["seconds"] / len(h)) if h else None
+    return h[-1]["seconds"] / len(h)
 
 
 def time_to_reach(rows, target):
@@ -154,14 +167,15 @@ def run(settings: Settings, ctx) -> list[dict]:
     ds = ctx.dataset(settings.example, settings.resolution, settings.spots)
     device = str(resolve_device(settings.device, settings.threads))
     views, cams, gt = _test_views(ds, settings.view_stride)
-    ctx.log(f"  {len(cams)} test views of {views.width} x {views.height}, device {device}")
-    score = _scorer(views, cams, gt, device)
+    ctx.log(f"  {len(cams)} test views of {views.width} x {views.height}, every {settings.pixel_stride}. pixel, "
+            f"device {device}")
+    score = _scorer(views, cams, gt, device, settings.pixel_stride)
     rows, best = [], {}
     for mode in settings.methods:
         curve, r = _fit_curve(ctx, ds, mode, settings, score)
         if mode == "platonerf" and settings.platonerf_timing_steps > 0:
-            curve[-1]["seconds_per_step_after_warmup"] = _seconds_per_step_after_warmup(
-                ds, settings, settings.platonerf_timing_steps)
+            sps, rss = _seconds_per_step_after_warmup(ctx, ds, settings, settings.platonerf_timing_steps)
+            curve[-1].update({"seconds_per_step_after_warmup": sps, "peak_rss_mb_after_warmup": rss})
         rows += curve
         best[mode] = min(c["depth_l1_m"] for c in curve)
     ctx.log(_summary(rows, best))
@@ -225,9 +239,15 @@ def readme(results) -> str:
 SUITE = Suite(
     name="time_to_error",
     description="depth L1 against wall time, fast vs platonerf (checkpoints), with the authors'-code curve as reference",
-    quick=Settings(resolution=64, view_stride=70, fast_steps=30, fast_eval_every_s=20.0, platonerf_budget_s=60.0,
-                   platonerf_eval_every_s=1e9, platonerf_timing_steps=2),
+    quick=Settings(resolution=64, view_stride=70, pixel_stride=8, fast_steps=30, fast_eval_every_s=20.0,
+                   platonerf_budget_s=60.0,
+                   platonerf_eval_every_s=1e9, platonerf_timing_steps=1),
     full=Settings(),
     run=run, plot=plot, readme=readme,
 )
 
+
+if __name__ == "__main__":      # the step-timing subprocess: DATASET DEVICE THREADS STEPS -> seconds per step
+    import sys
+
+    print(_time_steps(sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])))
