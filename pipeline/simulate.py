@@ -233,9 +233,15 @@ def simulate(args) -> int:
 def main(argv=None) -> int:
     args = build_parser().parse_args(_argv() if argv is None else argv)  # exits 2 with a usage line on bad options
     _add_venv_site_packages()
+    from torch_recon.contract.dataset.staging import InterruptGuard
     from torch_recon.contract.errors import run_command
 
-    return run_command(simulate, args, prog="simulate", interrupted="interrupted; nothing written")
+    InterruptGuard.install()      # Ctrl-C / SIGTERM stop the run between renders; the old dataset stays
+    try:
+        return run_command(simulate, args, prog="simulate",
+                           interrupted="interrupted; nothing written, the dataset at --out (if any) is as it was")
+    finally:
+        InterruptGuard.uninstall()
 
 
 if __name__ == "__main__":

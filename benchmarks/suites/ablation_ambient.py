@@ -144,8 +144,8 @@ def run(s: Settings, ctx) -> list[dict]:
 def _cell(r):
     if r is None:
         return "-"
-    if r.get("refused"):
-        return "refused"
+    if runners.failure(r):
+        return runners.failure(r)
     f1 = "-" if r.get("shadow_f1") is None else f"{r['shadow_f1']:.2f}"
     return f"{r['depth_l1_m']:.3f} m (F1 {f1})"
 

@@ -63,8 +63,8 @@ def fit_row(ctx, s: Settings, level, data, prep: dict, tag: str, transform=None,
         r = runners.fit(ctx, source, tag, dataset=data, steps=s.steps, max_seconds=s.budget_s,
                         sets=(f"fast.resolution={s.grid}", f"fast.coarse_resolution={max(8, s.grid // 2)}"))
     except Refused as exc:
-        ctx.log(f"    {level!s:>24}  refused: {exc}")
-        return {**runners.row("fast", s.example, prep, ("depth_l1_m", "depth_psnr_db"), **info), "refused": str(exc)}
+        return runners.refused_row("fast", s.example, exc, runners.combined(prep, exc.times) if exc.times else prep,
+                                   **info)
     row = runners.row("fast", s.example, {**r, **runners.combined(prep, r)}, FIELDS, **info,
                       preprocess_wall_s=prep["wall_s"])
     return row
@@ -117,7 +117,7 @@ def plot(rows, settings, path):
 
 
 def readme(results) -> str:
-    rows = [{**r, "level": str(r["level"]), "depth_l1_m": "refused" if r.get("refused") else r.get("depth_l1_m")}
+    rows = [{**r, "level": str(r["level"]), "depth_l1_m": runners.failure(r) or r.get("depth_l1_m")}
             for r in results["rows"]]
     cols = [("level", "level"), ("depth_l1_m", "depth L1 m"), ("depth_psnr_db", "PSNR dB"), ("steps", "steps"),
             ("wall_s", "wall s", ".1f"), ("signal_fraction", "signal fraction", ".2f")]

@@ -53,8 +53,7 @@ def run(s: Settings, ctx) -> list[dict]:
             try:
                 r = runners.baseline(ctx, data, tag, grid_search=True) if kw is None else runners.fit(ctx, data, tag, **kw)
             except Refused as exc:
-                ctx.log(f"  {scene} {label}: refused: {exc}")
-                rows.append(runners.refused_row(method, scene, exc, label=label))
+                rows.append(runners.refused_row(method, scene, exc, label=label, steps=exc.times.get("steps")))
                 continue
             rows.append(runners.row(method, scene, r, ("steps", *runners.METRICS), label=label,
                                     resolution=s.resolution))
@@ -79,8 +78,12 @@ def readme(results) -> str:
         cells = []
         for sc in scenes:
             r = next((q for q in rows if q["label"] == label and q["scene"] == sc), None)
-            if r is None or r.get("refused"):
-                cells.append("-" if r is None else "refused")
+            if r is None:
+                cells.append("-")
+                continue
+            if runners.failure(r):
+                ran = f" after {r['wall_s']:.1f} s ({r['steps']} steps)" if r.get("wall_s") is not None else ""
+                cells.append(runners.failure(r) + ran)
                 continue
             steps = f" ({r['steps']} steps)" if r.get("steps") is not None else ""
             cells.append(f"{r['depth_l1_m']:.4f} m / {r['depth_psnr_db']:.2f} dB / {r['wall_s']:.1f} s{steps}")

@@ -22,16 +22,31 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+#: top-level names evaluations of earlier versions wrote (they kept no record of them)
+EVAL_ENTRIES = ("report.json", "views", "test_depths.npz", "*.png", "*.html")
+
+
 def run(args) -> int:
     from ..contract.dataset import load_dataset
+    from ..contract.dataset.staging import StagedDir
+    from ..contract.errors import EvaluationError
     from ..contract.settings import from_args
     from ..evaluate import EvalSettings, evaluate
     from ..mesh_export import load_mesh_world
 
     ds = load_dataset(args.dataset)
     mesh = load_mesh_world(args.reconstruction)
+    gt = ds.manifest.ground_truth
+    if gt.test_views is None and gt.mesh_file is None:
+        raise EvaluationError(f"{ds.root}: the dataset has no ground truth (dataset.json ground_truth.test_views "
+                              f"and mesh_file are empty): nothing to evaluate against; simulate it without --no-gt")
+    if gt.mesh_file is not None:    # a damaged ground-truth mesh is refused before anything is computed
+        load_mesh_world(ds.path(gt.mesh_file))
     s = from_args(EvalSettings, args, extra={"cull_back_faces": False} if args.two_sided else None)
-    rep = evaluate(ds, args.out, mesh=mesh, settings=s, progress=True, extra={"reconstruction": args.reconstruction})
+    with StagedDir(args.out, "evaluation", legacy=EVAL_ENTRIES, marker="report.json") as st:
+        rep = evaluate(ds, st.path, mesh=mesh, settings=s, progress=True,
+                       extra={"reconstruction": args.reconstruction})
+        st.commit()     # report and images replace the previous evaluation's together, never mixed
 
     def fmt(v, f):
         return "n/a" if v is None else format(v, f)

@@ -20,6 +20,8 @@ from ..contract.methods import DEFAULT_FIT_METHOD, FIT_METHODS, method
 from ..contract.settings import check_device_name
 
 MODES = FIT_METHODS   # the fit methods of the method table (contract/methods.py)
+#: largest grid side a fit accepts (1024^3 voxels: ~43 GB of optimiser state)
+MAX_VOXELS_PER_SIDE = 1024
 
 
 @dataclass
@@ -128,6 +130,18 @@ class FitConfig:
             raise SettingsError("platonerf.reinit_dead",
                                 f"expected 'both', 'coarse' or 'off', got {self.platonerf.reinit_dead!r}")
         check_device_name(self.device)
+        for key in ("fast.lr", "fast.step_voxels", "fast.rays_per_batch", "platonerf.lr", "platonerf.rays_per_batch",
+                    "loss.path_scale_m"):
+            section, name = key.split(".")
+            v = getattr(getattr(self, section), name)
+            if not v > 0:      # the optimiser would raise deep inside torch
+                raise SettingsError(key, f"expected a value > 0, got {v}")
+        for key, n in (("fast.resolution", self.fast.resolution),
+                       ("platonerf.volume_resolution", self.platonerf.volume_resolution)):
+            if n > MAX_VOXELS_PER_SIDE:      # refused up front, with the estimate, not by an out-of-memory crash
+                from ..contract.units import format_bytes
+                raise SettingsError(key, f"{n} voxels per side would need about {format_bytes(40.0 * n ** 3)} "
+                                         f"of memory (~10 float32 per voxel); at most {MAX_VOXELS_PER_SIDE} is supported")
 
     @property
     def method_settings(self):
