@@ -94,6 +94,7 @@ def _fit_curve(ctx, ds_path, mode, settings, score):
     else:
         cfg.max_seconds = settings.platonerf_budget_s
         cfg.eval_every_s = settings.platonerf_eval_every_s
+        cfg.platonerf.volume_resolution = 32    # the mesh volume is not scored here (minutes of MLP on a CPU)
     points = []
 
     def on_eval(model, step, seconds):
