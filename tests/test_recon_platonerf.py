@@ -123,22 +123,22 @@ def test_importance_depths_follow_the_weights():
 
 
 def test_few_steps_lower_the_distance_loss_and_add_density(meas):
-    cfg = tiny_config(steps=30, warmup=1.0)            # the warm-up loss (plain MSE of the path)
+    cfg = tiny_config(steps=20, warmup=1.0)            # the warm-up loss (plain MSE of the path)
     model, data, gen = tiny_model(meas, cfg, seed=3)
     with torch.no_grad():
         before = float(model.density_volume()[0].mean())
     res = train(model, data, cfg, gen)
     d = [h["dist"] for h in res.history]
-    assert res.steps_done == 30 and all(np.isfinite(d))
+    assert res.steps_done == 20 and all(np.isfinite(d))
     assert np.mean(d[-5:]) < 0.5 * np.mean(d[:5])
     assert float(model.density_volume()[0].mean()) > before
 
 
 def test_after_warmup_the_shadow_terms_count(meas):
-    cfg = tiny_config(steps=4, warmup=0.5)
+    cfg = tiny_config(steps=2, warmup=0.5)
     model, data, gen = tiny_model(meas, cfg, seed=3)
     res = train(model, data, cfg, gen)
-    assert [h["shadow"] > 0 for h in res.history] == [False, False, True, True]
+    assert [h["shadow"] > 0 for h in res.history] == [False, True]
     assert all(np.isfinite(h["loss"]) for h in res.history)
 
 
