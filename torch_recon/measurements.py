@@ -60,10 +60,19 @@ class Measurements:
     visible_depth: np.ndarray | None = None     # (H, W) range along pixel rays (closed form, fused); NaN = unknown
     visible_confidence: np.ndarray | None = None  # (H, W) in [0, 1]
     settings: dict = field(default_factory=dict)  # preprocessing settings used (JSON-able)
+    ray_directions: np.ndarray | None = None      # (H, W, 3) unit world directions when the sensor is no
+                                                  # pinhole (e.g. a scanned real capture); None = pinhole
 
     @property
     def sensor_origin(self) -> np.ndarray:
         return np.asarray(self.camera_to_world)[:3, 3]
+
+    def pixel_directions(self) -> np.ndarray:
+        """(H, W, 3) unit world-frame direction of each pixel's ray (from `sensor_origin`)."""
+        if self.ray_directions is not None:
+            return np.asarray(self.ray_directions, np.float64)
+        from .contract.frames import pixel_rays
+        return pixel_rays(self.camera_to_world, self.width, self.height, self.fov_rad, self.fov_axis)[1]
 
     def save(self, path) -> Path:
         path = Path(path)
@@ -73,6 +82,8 @@ class Measurements:
                   "fov_axis": np.array(self.fov_axis), "camera_to_world": self.camera_to_world,
                   "laser_origin": self.laser_origin}
         arrays["settings_json"] = np.array(json.dumps(self.settings))
+        if self.ray_directions is not None:
+            arrays["ray_directions"] = np.asarray(self.ray_directions, np.float64)
         if self.visible_depth is not None:
             arrays["visible_depth"] = self.visible_depth
             arrays["visible_confidence"] = self.visible_confidence
@@ -155,4 +166,5 @@ class Measurements:
                    shadow_threshold=thr, spots=spots,
                    visible_depth=z["visible_depth"] if "visible_depth" in z else None,
                    visible_confidence=z["visible_confidence"] if "visible_confidence" in z else None,
-                   settings=json.loads(str(z["settings_json"])) if "settings_json" in z else {})
+                   settings=json.loads(str(z["settings_json"])) if "settings_json" in z else {},
+                   ray_directions=z["ray_directions"] if "ray_directions" in z else None)
