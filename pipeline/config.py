@@ -166,4 +166,6 @@ class SimulationConfig:
             d = load_file(path)
         except OSError as exc:
             raise ConfigError(str(path), "", f"cannot read ({exc.strerror})") from None
+        except SettingsError as exc:      # not JSON/TOML, not a table: the same ConfigError as a bad value
+            raise ConfigError(str(path), exc.key, exc.detail) from None
         return cls.from_dict(d, str(path))

@@ -63,7 +63,7 @@ def run(s: Settings, ctx) -> list[dict]:
         try:
             r = runners.fit(ctx, source, tag, dataset=data, **kw)
         except Refused as exc:
-            rows.append(runners.refused_row(method, "cave-chair", exc, label=label))
+            rows.append(runners.refused_row(method, "cave-chair", exc, label=label, steps=exc.times.get("steps")))
             continue
         rows.append(runners.row(method, "cave-chair", r, ("steps", "stopped", "train_s", *runners.METRICS),
                                 label=label, resolution=s.resolution, grid=s.grid))
@@ -71,8 +71,9 @@ def run(s: Settings, ctx) -> list[dict]:
 
 
 def readme(results) -> str:
-    return report.markdown_table(results["rows"], [
-        ("label", "run"), ("wall_s", "wall s"), ("steps", "steps"), ("peak_rss_mb", "peak MB"),
+    rows = [{**r, "depth_l1_m": runners.failure(r) or r.get("depth_l1_m")} for r in results["rows"]]
+    return report.markdown_table(rows, [
+        ("label", "run"), ("wall_s", "wall s", ".1f"), ("steps", "steps"), ("peak_rss_mb", "peak MB", ".0f"),
         ("depth_l1_m", "depth L1 m"), ("depth_psnr_db", "PSNR dB"), ("chamfer_m", "Chamfer m"), ("fscore", "F@5cm")])
 
 
