@@ -177,8 +177,12 @@ def fit_unchanged_but_checkpoint(ws):
 
 def old_or_new_fit(ws):
     """After a kill: the old fit complete and untouched, or a new complete one (fit.json names its mesh)."""
+    from torch_recon.contract.dataset.staging import StagedDir
     ch = ws.changed()
     fit = ws.root / "fit"
+    # the killed run's hidden staging folder is removed by the next run that writes there
+    StagedDir(fit, "fit", marker="fit.json", keep=("checkpoint.pt",)).discard()
+    assert not ws.leftovers(), ws.leftovers()
     if not (set(ch["modified"]) - {"fit/checkpoint.pt"}) and not ch["lost"]:
         return
     rep = json.loads((fit / "fit.json").read_text())

@@ -208,3 +208,30 @@ def run_signalled(cmd, sig, when, timeout=300, tmpdir=None) -> tuple:
 
 
 SIGINT, SIGTERM, SIGKILL = signal.SIGINT, signal.SIGTERM, signal.SIGKILL
+
+
+_BATCH = r"""
+import contextlib, io, json, sys
+sys.argv = ["simulate.py"]
+from pipeline.simulate import main
+out = []
+for argv in json.loads(sys.stdin.read()):
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        try:
+            rc = main(argv)
+        except SystemExit as exc:          # argparse's usage errors
+            rc = exc.code if isinstance(exc.code, int) else 2
+    out.append([rc, err.getvalue()])
+print("\n@@RESULTS@@" + json.dumps(out))
+"""
+
+
+def run_simulate_batch(argvs, timeout=600) -> list:
+    """Many `pipeline/simulate.py ARGV` runs in ONE process (bpy is imported once): [(exit code, stderr)]."""
+    import json
+    proc = subprocess.run([PY, "-c", _BATCH], input=json.dumps([[str(a) for a in v] for v in argvs]),
+                          capture_output=True, text=True, cwd=ROOT, env=_env(), timeout=timeout)
+    if "@@RESULTS@@" not in proc.stdout:
+        raise AssertionError(f"simulate batch died (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
+    return [tuple(r) for r in json.loads(proc.stdout.rsplit("@@RESULTS@@", 1)[1])]

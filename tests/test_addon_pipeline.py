@@ -27,7 +27,7 @@ def _author(scene):
     s.bin_ps, s.bins = 64.0, 1000
     s.subpixel_grid = 1
     s.test_views_dolly = s.test_views_orbit = 0
-    for p in ((1.5, 2.5, 0.0), (1.5, 3.0, 2.0)):  # floor, wall (both in the 20 x 20 view)
+    for p in ((1.2, 2.0, 0.0), (1.5, 3.0, 2.0)):  # floor, wall (both in the sensor's view: simulate refuses others)
         scene.cursor.location = p
         call(bpy.ops.platolidar.add_spot_cursor)
 
@@ -54,7 +54,7 @@ def test_panel_and_headless_runs_give_the_same_dataset(room, tmp_path):
     m_head, tr_head = _dataset(tmp_path / "headless_ds")
     assert m_panel == m_head
     assert m_panel["sensor"]["width"] == 20 and len(m_panel["spots"]) == 2
-    assert m_panel["spots"][0]["first_bounce"] == pytest.approx([1.5, 2.5, 0.0], abs=1e-4)
+    assert m_panel["spots"][0]["first_bounce"] == pytest.approx([1.2, 2.0, 0.0], abs=1e-4)
     for k in tr_panel:
         np.testing.assert_array_equal(tr_panel[k], tr_head[k])
         assert tr_panel[k].sum() > 0

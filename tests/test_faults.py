@@ -10,7 +10,8 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 from fault_cases import CASES  # noqa: E402
-from fault_workspace import FaultData, Workspace, message_lines, run_recon, run_simulate  # noqa: E402
+from fault_workspace import (FaultData, Workspace, message_lines, run_recon, run_simulate,  # noqa: E402
+                             run_simulate_batch)
 
 assert len({c.name for c in CASES}) == len(CASES), "duplicate case names"
 
@@ -19,6 +20,31 @@ assert len({c.name for c in CASES}) == len(CASES), "duplicate case names"
 def fault_data(tmp_path_factory):
     pytest.importorskip("torch")
     return FaultData(tmp_path_factory.mktemp("fault_data"))
+
+
+def _batched(case) -> bool:
+    """Plain simulate refusals run together in one process (bpy and Cycles start once)."""
+    return case.name.startswith("sim-") and not case.slow and case.after is None
+
+
+@pytest.fixture(scope="session")
+def sim_batch(fault_data, tmp_path_factory):
+    """{case name: (workspace, exit code, stderr)} for every batched simulate case."""
+    pytest.importorskip("bpy")
+    root = tmp_path_factory.mktemp("sim_batch")
+    cases = [c for c in CASES if _batched(c)]
+    spaces, argvs = [], []
+    for c in cases:
+        ws = Workspace(root / c.name, fault_data)
+        kind, argv = c.run(ws)
+        assert kind == "sim", c.name
+        if c.prepare is not None:
+            c.prepare(ws, None)
+        ws.snapshot()
+        spaces.append(ws)
+        argvs.append(argv)
+    results = run_simulate_batch(argvs)
+    return {c.name: (ws, rc, err) for c, ws, (rc, err) in zip(cases, spaces, results)}
 
 
 def _params():
@@ -30,16 +56,22 @@ def _params():
 
 
 @pytest.mark.parametrize("case", _params())
-def test_fault(case, fault_data, tmp_path, monkeypatch, capsys):
+def test_fault(case, fault_data, tmp_path, monkeypatch, capsys, request):
     if case.name.startswith(("sim-", "addon-")):
         pytest.importorskip("bpy")
-    ws = Workspace(tmp_path / "ws", fault_data)
-    ran = case.run(ws)                        # composite cases build their state first
-    if ran[0] != "done" and case.prepare is not None:
-        case.prepare(ws, monkeypatch)
-    if not ws.before and ran[0] != "done":
-        ws.snapshot()
-    if ran[0] == "recon":
+    if _batched(case):
+        ws, rc, err = request.getfixturevalue("sim_batch")[case.name]
+        ran = ("batched",)
+    else:
+        ws = Workspace(tmp_path / "ws", fault_data)
+        ran = case.run(ws)                    # composite cases build their state first
+        if ran[0] != "done" and case.prepare is not None:
+            case.prepare(ws, monkeypatch)
+        if not ws.before and ran[0] != "done":
+            ws.snapshot()
+    if ran[0] == "batched":
+        pass
+    elif ran[0] == "recon":
         rc, err = run_recon(ran[1], capsys)
     elif ran[0] == "sim":
         rc, err = run_simulate(ran[1])

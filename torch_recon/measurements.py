@@ -159,8 +159,6 @@ class Measurements:
                 **{name: (z[f"s{k}_{name}"] if name != "first_bounce_path_m" else float(z[f"s{k}_{name}"]))
                    for name in _OPTIONAL_SPOT_ARRAYS if f"s{k}_{name}" in z}))
             k += 1
-        if not spots:
-            raise MeasurementsError(f"{path}: no spots (arrays s0_*) in the file")
         return cls(width=w, height=h, fov_rad=fov, fov_axis=str(z["fov_axis"]),
                    camera_to_world=z["camera_to_world"], laser_origin=z["laser_origin"], bin_width_m=bw,
                    shadow_threshold=thr, spots=spots,
