@@ -128,6 +128,7 @@ def fit(source, mode: str = "fast", out=None, config: FitConfig | None = None, o
     setup = time.perf_counter() - t_start
     tr = train(model, data, cfg, gen, out_dir, on_eval=on_eval, fault_hook=fault_hook, stop_after=stop_after)
     vol, lo, hi = model.density_volume()
+    free = model.free_evidence() if hasattr(model, "free_evidence") else None
     result = FitResult(mode=cfg.mode, model=model, train=tr, setup_seconds=setup, total_seconds=0.0,
                        volume=vol, bbox_min=lo, bbox_max=hi, level=cfg.mesh_level, source_hash=src_hash,
                        out_dir=out_dir)
@@ -137,7 +138,9 @@ def fit(source, mode: str = "fast", out=None, config: FitConfig | None = None, o
                        "nan_restores": tr.nan_restores, "resumed_from": tr.resumed_from}
     if out_dir is not None:
         tmp = out_dir / (VOLUME_NAME + ".tmp.npz")
-        np.savez_compressed(tmp, opacity=vol.astype(np.float32), bbox_min=lo, bbox_max=hi, level=cfg.mesh_level)
+        extra = {} if free is None else {"free_evidence": free}
+        np.savez_compressed(tmp, opacity=vol.astype(np.float32), bbox_min=lo, bbox_max=hi, level=cfg.mesh_level,
+                            **extra)
         tmp.replace(out_dir / VOLUME_NAME)
         if export:
             result.metadata["run_seconds"] = round(time.perf_counter() - t_start, 3)
@@ -145,7 +148,8 @@ def fit(source, mode: str = "fast", out=None, config: FitConfig | None = None, o
 
             try:
                 result.mesh_files, result.mesh = export_volume(vol, lo, hi, cfg.mesh_level, out_dir / "mesh",
-                                                               result.metadata, uv=uv)
+                                                               result.metadata, uv=uv, free_space=free,
+                                                               smooth_iterations=cfg.mesh_smooth_iterations)
             except MeshExportError as exc:      # e.g. an early stop with nothing occupied yet
                 result.metadata["mesh_error"] = str(exc)
                 warnings.warn(f"no mesh written: {exc}", RuntimeWarning, stacklevel=2)
@@ -158,8 +162,12 @@ def fit(source, mode: str = "fast", out=None, config: FitConfig | None = None, o
     return result
 
 
-def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: dict, uv: bool = True):
+def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: dict, uv: bool = True,
+                  free_space=None, smooth_iterations: int = 0):
     """Marching cubes + cleanup + UVs -> .glb (+ .ply, .obj) through the shared mesh exporter.
+
+    free_space (same shape as volume, bool): report only surfaces facing measured free space;
+    smooth_iterations: Taubin smoothing passes (see mesh_export.mesh_from_volume).
 
     Our values sit at voxel centres; the exporter's grid points span its bbox corner to corner, so
     it gets the box of the centres.
@@ -169,7 +177,8 @@ def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: d
     lo, hi = np.asarray(bbox_min, np.float64), np.asarray(bbox_max, np.float64)
     half = 0.5 * (hi - lo) / np.asarray(np.shape(volume), np.float64)
     res = export_mesh(volume, lo + half, hi - half, level, Path(out_path).with_suffix(".glb"), metadata,
-                      extra_formats=(".ply", ".obj"), uv=uv)
+                      extra_formats=(".ply", ".obj"), uv=uv, free_space=free_space,
+                      smooth_iterations=smooth_iterations)
     files = {p.suffix.lstrip("."): p for p in res.paths}
     files["sidecar"] = res.sidecar
     return files, res.mesh

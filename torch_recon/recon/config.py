@@ -40,10 +40,7 @@ class FastConfig:
     raw_free: float = -10.0           # raw density of free space at initialisation (sigma ~ 0.002 / m)
     raw_occupied: float = 4.0         # raw density of occupied space (sigma ~ 200 / m: opaque in 1 voxel)
     surface_slope: float = 16.0       # raw-density ramp per voxel across visible surfaces at init (0: binary)
-    hidden_thickness_m: float | None = 0.3  # hidden, uncarved space is filled only this far behind the
-                                      # visible surface (None: all of it, BF Lidar's shadow hull)
-    shell_voxels: float = 2.0         # ... and this close to the box faces (walls, floor, ceiling)
-    fill_min_shadow: int = 2          # ... and where at least this many shadowed secondary rays pass (0: off)
+    surface_half_width_voxels: float = 2.0  # the signed-distance ramp spans +- this around visible surfaces
     carve_core: float = 0.3           # a lit ray carves a voxel only through its central 0.6-voxel cube
     carve_spacing_voxels: float = 1.0  # carve with pixels about this many voxels apart at the far surfaces
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
@@ -94,6 +91,7 @@ class FitConfig:
     progress: bool = True
     eval_every_s: float | None = None  # benchmark hook: call `on_eval` this often (seconds of training)
     mesh_level: float = 0.5           # iso level on opacity over one voxel
+    mesh_smooth_iterations: int = 10  # Taubin smoothing passes on the exported mesh (0: raw marching cubes)
     loss: LossConfig = field(default_factory=LossConfig)
     fast: FastConfig = field(default_factory=FastConfig)
     platonerf: PlatoNeRFConfig = field(default_factory=PlatoNeRFConfig)

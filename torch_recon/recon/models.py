@@ -14,7 +14,7 @@ import torch.nn.functional as F
 from .config import FitConfig
 from .data import RayData
 from .fields import DensityGrid, GridBox, NeRFField
-from .init import fov_xy, initial_grid, scene_bbox
+from .init import in_view, initial_grid, scene_bbox
 from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total_loss
 from .renderer import render_field, render_pruned, secondary_rays
 from .sampler import importance_positions, merged_intervals, ray_box, uniform_intervals
@@ -56,16 +56,23 @@ class FastModel:
         lo, hi = scene_bbox(data, self.fc.bbox_margin_voxels * fine_voxel)
         self.bbox = (lo, hi)
         self.level = 0 if self.fc.coarse_fraction > 0 and self.fc.coarse_resolution < self.fc.resolution else 1
-        self.grid = self._initial(self.fc.coarse_resolution if self.level == 0 else self.fc.resolution)
+        self.grid, self.free = self._initial(self.fc.coarse_resolution if self.level == 0 else self.fc.resolution)
         self.occupancy = None
         self.refresh_occupancy()
         self.make_optimizer()
 
     def _initial(self, res):
         box = GridBox(self.bbox[0], self.bbox[1], res).to(self.device)
-        fx, fy = fov_xy(self.data.width, self.data.height, self.meta["fov_rad"], self.meta["fov_axis"])
-        return initial_grid(self.data, box, self.fc, self.meta["camera_to_world"], fx, fy,
-                            self.offset_for(box.voxel))
+        return initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box))
+
+    def _view(self, box):
+        return in_view(self.data, box, self.meta["camera_to_world"], self.meta["fov_rad"], self.meta["fov_axis"])
+
+    def free_evidence(self) -> np.ndarray:
+        """Voxels (nx, ny, nz) the measurements show empty, on the current grid (for the mesh export)."""
+        if tuple(self.free.shape) != tuple(self.grid.box.shape):
+            self.free = initial_grid(self.data, self.grid.box, self.fc, self.offset, self._view(self.grid.box))[1]
+        return self.free.cpu().numpy()
 
     def offset_for(self, voxel):
         return max(self.cfg.loss.secondary_offset_m, self.fc.secondary_offset_voxels * voxel)
@@ -148,13 +155,15 @@ class FastModel:
     def state_dict(self):
         return {"level": self.level, "raw": self.grid.raw.detach().clone(),
                 "bbox_min": self.grid.box.bbox_min.cpu(), "voxel": self.grid.box.voxel,
-                "shape": list(self.grid.box.shape),
+                "shape": list(self.grid.box.shape), "free": self.free.clone(),
                 "occupancy": self.occupancy.clone(), "tau_step": self.tau_step.clone(), "optimizer": self.optimizer.state_dict()}
 
     def load_state_dict(self, st):
         self.level = int(st["level"])
         box = GridBox.exact(st["bbox_min"], st["voxel"], st["shape"]).to(self.device)
         self.grid = DensityGrid(box, self.fc.density_scale, st["raw"].to(self.device))
+        if "free" in st:
+            self.free = st["free"].to(self.device)
         self.occupancy = st["occupancy"].to(self.device)
         self.tau_step = st["tau_step"].to(self.device)
         self.make_optimizer()
