@@ -147,7 +147,9 @@ def fit(source, mode: str = "fast", out=None, config: FitConfig | None = None, o
             from ..mesh_export import MeshExportError
 
             try:
-                result.mesh_files, result.mesh = export_volume(vol, lo, hi, cfg.mesh_level, out_dir / "mesh",
+                mvol, mlevel = (model.surface_volume() if hasattr(model, "surface_volume")
+                                else (vol, cfg.mesh_level))
+                result.mesh_files, result.mesh = export_volume(mvol, lo, hi, mlevel, out_dir / "mesh",
                                                                result.metadata, uv=uv, free_space=free,
                                                                smooth_iterations=cfg.mesh_smooth_iterations)
             except MeshExportError as exc:      # e.g. an early stop with nothing occupied yet

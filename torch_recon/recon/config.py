@@ -39,7 +39,8 @@ class FastConfig:
     density_scale: float = 50.0       # sigma = density_scale * softplus(raw), in 1 / m
     raw_free: float = -10.0           # raw density of free space at initialisation (sigma ~ 0.002 / m)
     raw_occupied: float = 4.0         # raw density of occupied space (sigma ~ 200 / m: opaque in 1 voxel)
-    surface_slope: float = 16.0       # raw-density ramp per voxel across visible surfaces at init (0: binary)
+    surface_slope: float = 4.0        # raw-density ramp per voxel across visible surfaces at init (0: binary);
+                                      # 16 left the raw field binary at voxel centres (terraced meshes)
     surface_half_width_voxels: float = 2.0  # the signed-distance ramp spans +- this around visible surfaces
     carve_core: float = 0.3           # a lit ray carves a voxel only through its central 0.6-voxel cube
     carve_spacing_voxels: float = 1.0  # carve with pixels about this many voxels apart at the far surfaces

@@ -14,7 +14,7 @@ import torch.nn.functional as F
 from .config import FitConfig
 from .data import RayData
 from .fields import DensityGrid, GridBox, NeRFField
-from .init import in_view, initial_grid, scene_bbox
+from .init import in_view, initial_grid, scene_bbox, surface_offset
 from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total_loss
 from .renderer import render_field, render_pruned, secondary_rays
 from .sampler import importance_positions, merged_intervals, ray_box, uniform_intervals
@@ -148,6 +148,21 @@ class FastModel:
         sigma = self.grid.sigma_xyz()
         op = 1.0 - torch.exp(-sigma * self.grid.box.voxel)
         return op.cpu().numpy(), self.grid.box.bbox_min.cpu().numpy(), self.grid.box.bbox_max.cpu().numpy()
+
+    def surface_volume(self):
+        """A field for marching cubes (nx, ny, nz) and its level: the raw density clipped to one voxel's
+        signed-distance ramp around the raw value at the surface (where a ray crossing the initial
+        ramp has half its transmittance left: the depth volume rendering puts there).
+
+        The ramp is steep (surface_slope per voxel), so opacity at voxel centres is nearly binary and
+        marching cubes on it snaps the surface to the midpoint between centres (grid-aligned terraces
+        of up to half a voxel). Clipped raw is linear in the signed distance across the surface: the
+        interpolated crossing is the measured surface to a fraction of a voxel."""
+        slope = max(self.fc.surface_slope, 1.0)
+        iso = surface_offset(self.grid.density_scale, self.grid.box.voxel, slope)
+        half = max(min(slope, iso - self.fc.raw_free, self.fc.raw_occupied - iso), 1e-3)   # inside the init's clamp
+        raw = self.grid.raw_xyz().detach().clamp(iso - half, iso + half)
+        return raw.cpu().numpy(), iso
 
     def params_finite(self) -> bool:
         return bool(torch.isfinite(self.grid.raw).all())
