@@ -16,14 +16,16 @@ import bpy
 import numpy as np
 from mathutils.bvhtree import BVHTree
 
+from torch_recon.contract.errors import PlatolidarError
+
 COLLECTION_NAME = "Reconstruction"
 ERROR_ATTRIBUTE = "error_m"
 ERROR_COLOUR = "error_colour"
 POINTS_NAME = "Visible Depth"
 
 
-class ImportProblem(RuntimeError):
-    pass
+class ImportProblem(PlatolidarError, RuntimeError):
+    """A file the import cannot use; the message names it."""
 
 
 def reconstruction_collection(scene) -> bpy.types.Collection:
@@ -192,7 +194,7 @@ def visible_depth_points(npz_path: str) -> tuple[np.ndarray, np.ndarray | None]:
     """World points of the closed-form visible depth in a measurements .npz (and their confidence)."""
     from . import _project
     _project.ensure_importable()
-    from torch_recon.frames import pixel_rays
+    from torch_recon.contract.frames import pixel_rays
     from torch_recon.measurements import Measurements
 
     if not os.path.isfile(npz_path):

@@ -14,17 +14,20 @@ import json
 import math
 from dataclasses import asdict, dataclass, field, fields
 
+from torch_recon.contract.errors import SettingsError
+from torch_recon.contract.settings import check_value, find_spec, load_file
+
 CONFIG_SCHEMA_VERSION = "1.0"
 #: Name of the Text datablock in which the add-on keeps the settings inside the .blend
 CONFIG_TEXT_NAME = "platolidar_config.json"
 
 
-class ConfigError(ValueError):
+class ConfigError(SettingsError):
     """Bad settings: names the source and the setting and says what was expected."""
 
     def __init__(self, source: str, setting: str, message: str):
-        self.source, self.setting = source, setting
-        super().__init__(f"{source}: setting '{setting}': {message}")
+        super().__init__(setting, message, source)
+        self.setting = setting
 
 
 @dataclass
@@ -133,6 +136,11 @@ class SimulationConfig:
         kw = dict(d)
         kw.pop("schema_version", None)
         spots = kw.pop("spots", [])
+        for key, value in kw.items():   # types and ranges: the shared settings mechanism
+            try:
+                kw[key] = check_value(find_spec(cls, key), value)
+            except SettingsError as exc:
+                raise ConfigError(source, key, exc.detail) from None
         if not isinstance(spots, list):
             raise ConfigError(source, "spots", "expected a list")
         spot_keys = {f.name for f in fields(SpotConfig)}
@@ -153,9 +161,11 @@ class SimulationConfig:
 
     @classmethod
     def load(cls, path) -> "SimulationConfig":
+        """A settings file: JSON, or TOML by suffix (the shared reader, contract/settings.py)."""
         try:
-            with open(path) as f:
-                text = f.read()
+            d = load_file(path)
         except OSError as exc:
             raise ConfigError(str(path), "", f"cannot read ({exc.strerror})") from None
-        return cls.from_json(text, str(path))
+        except SettingsError as exc:      # not JSON/TOML, not a table: the same ConfigError as a bad value
+            raise ConfigError(str(path), exc.key, exc.detail) from None
+        return cls.from_dict(d, str(path))

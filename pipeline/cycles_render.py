@@ -4,14 +4,14 @@ Sub-pixel point samples: the image is rendered at s x the sensor resolution with
 one sample per pixel and a 0.01-pixel box filter, so every rendered pixel is a
 point sample at a sub-pixel centre; each s x s block is one sensor pixel's
 S = s^2 samples (sample k = a * s + b: row offset a, column offset b, the order
-of torch_recon.analytic's stratified offsets).
+of torch_recon.contract.analytic's stratified offsets).
 
 Light units (checked numerically, tests/test_sim_physics.py): a Cycles disk area
 light of power P_e watts is a Lambertian emitter of exitance P_e / A, so a
 Lambertian surface of albedo rho_x at distance r returns radiance
 (rho_x / pi) (P_e / pi) cos_l cos_x / r^2. The lit laser spot reflects
 rho_l * P of the laser power P, so an emitter of P_e = rho_l * P reproduces the
-two-bounce radiance (rho_l/pi)(rho_x/pi) P cos_l cos_x / r^2 of torch_recon.analytic.
+two-bounce radiance (rho_l/pi)(rho_x/pi) P cos_l cos_x / r^2 of torch_recon.contract.analytic.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ import OpenEXR
 from mathutils import Vector
 
 from pipeline.blender_scene import scene_lights
+from torch_recon.contract.dataset.staging import InterruptGuard
 
 #: the emitter floats this far above the lit surface (keeps it out of the surface's own shadow test)
 EMITTER_OFFSET_M = 1e-3
@@ -140,7 +141,8 @@ class CyclesRenderer:
     def _render(self, name: str) -> dict:
         path = os.path.join(self.tmp.name, name + ".exr")
         self.scene.render.filepath = path
-        bpy.ops.render.render(write_still=True, scene=self.scene.name)
+        with InterruptGuard.deferring():   # Ctrl-C: this render ends, then the run stops (its image unused)
+            bpy.ops.render.render(write_still=True, scene=self.scene.name)
         return read_multilayer_exr(path)
 
     # -- renders ----------------------------------------------------------------------
@@ -198,7 +200,8 @@ class CyclesRenderer:
             r.image_settings.color_mode = "RGB"
             r.image_settings.color_depth = "8"
             r.filepath = path
-            bpy.ops.render.render(write_still=True, scene=sc.name)
+            with InterruptGuard.deferring():
+                bpy.ops.render.render(write_still=True, scene=sc.name)
         finally:
             bpy.data.objects.remove(obj)
             bpy.data.lights.remove(data)

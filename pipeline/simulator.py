@@ -22,12 +22,14 @@ import bpy
 import numpy as np
 
 from pipeline import blender_scene as bs
-from pipeline import ground_truth, sensor_model, spot_selection, third_bounce, transient_binning
+from pipeline import sensor_model, third_bounce, transient_binning
+from torch_recon.contract import ground_truth, spots
+from torch_recon.contract.errors import PlatolidarError
 from pipeline.cycles_render import EMITTER_OFFSET_M, CyclesRenderer
-from torch_recon.dataset import (DatasetError, DatasetWriter, Manifest, NoiseSpec, Provenance, PulseSpec,
+from torch_recon.contract.dataset import (DatasetError, DatasetWriter, Manifest, NoiseSpec, Provenance, PulseSpec,
                                  SensorSpec, Spot, TimeGate, TransientLayout, load_dataset, transient_relpath)
-from torch_recon.frames import focal_length_px, project_points
-from torch_recon.units import ps_to_m
+from torch_recon.contract.frames import focal_length_px, project_points
+from torch_recon.contract.units import ps_to_m
 
 SIM_VERSION = "1.0"
 LASER_POWER_W = 1.0          # expected values are in units of this power; the sensor model rescales
@@ -35,7 +37,7 @@ RGB_POWER_W = 100.0          # point light of the RGB-shadow images (exposure on
 DEFAULT_ALBEDO = 0.8
 
 
-class SimulationError(RuntimeError):
+class SimulationError(PlatolidarError, RuntimeError):
     """A scene/setting combination that cannot be simulated; the message says which and why."""
 
 
@@ -82,6 +84,8 @@ def plan_spots(cfg, scene, depsgraph, sensor, keep_requested: bool) -> list:
     o = np.asarray(sensor.laser_origin)
     forward = -np.asarray(sensor.camera_to_world)[:3, 2]
     rng = np.random.default_rng(cfg.seed)
+    laser_object = scene.objects.get(cfg.laser_object) if cfg.laser_object else None
+    exclude = (laser_object.original,) if laser_object is not None else ()   # the laser's own housing
     if cfg.spots:
         plans = []
         for i, s in enumerate(cfg.spots):
@@ -99,11 +103,18 @@ def plan_spots(cfg, scene, depsgraph, sensor, keep_requested: bool) -> list:
         if keep_requested and cfg.random_keep > len(pool):
             pool = [p for p, _ in plans]
     else:
-        dirs = spot_selection.random_candidate_directions(cfg.random_candidates, rng, sensor)
-        pool = [SpotPlan(i, f"random_{i}", d) for i, d in enumerate(dirs)]
+        # the same recipe (and seed) as the add-on's "Generate Spots": selection already done
+        targets, _, found = bs.random_spot_targets(scene, depsgraph, sensor, cfg.random_candidates, cfg.random_keep,
+                                                   cfg.seed, exclude)
+        if found < cfg.random_candidates:
+            log(f"warning: only {found} of {cfg.random_candidates} random candidates hit a surface the laser reaches")
+        pool = []
+        for i, t in enumerate(targets):
+            d = (t - o) / np.linalg.norm(t - o)
+            pool.append(SpotPlan(i, f"random_{i}", d))
     hits = []
     for p in pool:
-        hit = bs.ray_cast(scene, depsgraph, o + 1e-4 * p.direction, p.direction)
+        hit = bs.ray_cast(scene, depsgraph, o + 1e-4 * p.direction, p.direction, exclude=exclude)
         if hit is None:
             log(f"warning: spot {p.id} ({p.name}): the laser ray hits nothing; spot skipped")
             continue
@@ -113,11 +124,11 @@ def plan_spots(cfg, scene, depsgraph, sensor, keep_requested: bool) -> list:
         hits.append(p)
     if not hits:
         raise SimulationError("no laser spot hits the scene (check the spot targets and that the scene has geometry)")
-    if keep_requested or not cfg.spots:
+    if keep_requested and cfg.spots:
         k = cfg.random_keep
         if k < len(hits):
-            idx = spot_selection.select_diverse_spots(np.array([p.first_bounce for p in hits]),
-                                                      np.array([p.normal for p in hits]), k, rng)
+            idx = spots.select_diverse_spots(np.array([p.first_bounce for p in hits]),
+                                             np.array([p.normal for p in hits]), k, rng)
             hits = [hits[int(i)] for i in idx]   # selection order: the first k are a spread-out subset
         elif k > len(hits):
             log(f"warning: {k} spots requested, {len(hits)} available")
@@ -241,6 +252,8 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
     """Simulate and commit the dataset at out_dir; returns timings and counts."""
     t_start = time.perf_counter()
     timings = {}
+    check_size(cfg)
+    DatasetWriter.check_target(out_dir)     # an output folder holding others' files: refused before rendering
     scene = bpy.context.scene
     bs.match_viewport_to_render(scene)
     cam = bs.sensor_camera(scene, cfg.camera)
@@ -264,6 +277,7 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
     if len(triangles[1]) == 0:
         raise SimulationError("the scene has no render-visible mesh geometry")
     plans = plan_spots(cfg, scene, depsgraph, sensor, keep_requested)
+    check_spots_in_view(plans, sensor)
 
     renderer = CyclesRenderer(scene, cam, cfg.width, cfg.height, side, seed=cfg.seed)
     try:
@@ -308,6 +322,48 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
     return {"spots": len(plans), "timings": timings}
 
 
+def _reusable(path, old) -> bool:
+    """An earlier run's transient may be reused only if it still reads back whole and valid."""
+    from torch_recon.contract.dataset import read_transient_file
+    if not path.is_file():
+        return False
+    try:
+        read_transient_file(path, old.manifest, "reused transient")
+    except (DatasetError, OSError, ValueError) as exc:
+        log(f"note: {path.name} of the earlier dataset is damaged ({str(exc)[:120]}); rendering it again")
+        return False
+    return True
+
+
+def check_size(cfg) -> None:
+    """Refuse, before anything is built, a sensor no machine can hold (with the estimate)."""
+    from torch_recon.contract.units import transient_size_problem
+
+    problem = transient_size_problem(cfg.width, cfg.height, cfg.bins)
+    if problem:
+        key = "bins" if max(cfg.width, cfg.height) <= 8192 else "width' / 'height"
+        raise SimulationError(f"setting '{key}': {problem}")
+    side = math.isqrt(max(cfg.subpixel_samples, 1))
+    if max(cfg.width, cfg.height) * side > 65536:
+        raise SimulationError(f"setting 'subpixel_samples': {cfg.width} x {cfg.height} pixels x {side}^2 samples "
+                              f"exceed Cycles' 65536 x 65536 render limit")
+
+
+def check_spots_in_view(plans, sensor) -> None:
+    """Every spot's l must lie in the sensor's view: its first bounce locates it (else preprocess refuses)."""
+    c2w = np.asarray(sensor.camera_to_world)
+    outside = []
+    for p in plans:
+        col, row, depth = project_points(c2w, sensor.width, sensor.height, sensor.fov_rad, p.first_bounce,
+                                         sensor.fov_axis)
+        if not (depth > 0 and 0 <= col < sensor.width and 0 <= row < sensor.height):
+            outside.append(f"{p.id} ({p.name})")
+    if outside:
+        raise SimulationError(f"spot(s) {', '.join(outside)} lie outside the sensor's {sensor.width}x{sensor.height} "
+                              f"view (their first bounce cannot be measured): aim them inside the view or change "
+                              f"the width/height or the camera")
+
+
 def write_dataset(out_dir, plans, ctx: RunContext):
     """Render (or reuse) every spot, write ground truth and commit: one atomic dataset."""
     cfg, timings, old = ctx.cfg, ctx.timings, ctx.old
@@ -318,7 +374,7 @@ def write_dataset(out_dir, plans, ctx: RunContext):
             t0 = time.perf_counter()
             h = spot_hash(p, ctx.common)
             rel = transient_relpath(p.id)
-            if h in old_files and old_files[h].is_file():
+            if h in old_files and _reusable(old_files[h], old):
                 writer.reuse_file(old_files[h], rel)
                 what, lay = "unchanged, reused", old.manifest.layout
             else:

@@ -8,13 +8,13 @@ import sys
 import textwrap
 from pathlib import Path
 
+from pipeline.launch import run_simulate
+
 ROOT = Path(__file__).resolve().parents[1]
-SIM = [sys.executable, str(ROOT / "pipeline" / "simulate.py")]
 
 
 def simulate(out, *args, check=True, blend=None):
-    cmd = SIM + ([str(blend)] if blend else []) + ["--out", str(out), *map(str, args)]
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    proc = run_simulate(["--out", out, *args], blend=blend, cwd=ROOT, timeout=300)
     if check and proc.returncode != 0:
         raise AssertionError(f"simulate failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
     return proc
@@ -25,8 +25,8 @@ import json, sys, bpy
 sys.path.insert(0, {root!r})
 from pipeline.blender_scene import diffuse_material, store_config
 from pipeline.config import SimulationConfig, SpotConfig
-from pipeline.scenes import box
-from torch_recon.frames import look_at_c2w
+from torch_recon.contract.scenes import box
+from torch_recon.contract.frames import look_at_c2w
 from mathutils import Matrix
 opts = json.loads({opts!r})
 bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -65,7 +65,7 @@ def blend_trimesh():
     import numpy as np
     import trimesh
 
-    from pipeline.scenes import box
+    from torch_recon.contract.scenes import box
 
     parts = [box(*p) for p in BLEND_PARTS]
     off = np.cumsum([0] + [len(p.vertices) for p in parts])

@@ -2,65 +2,110 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
+from ..bflidar import BFLidarSettings
+from ..preprocess import PreprocessSettings
+
+
+@dataclass
+class BaselineCommand:
+    """Settings of `baseline`: preprocessing, then BF Lidar carving."""
+
+    preprocess: PreprocessSettings = field(default_factory=PreprocessSettings)
+    bflidar: BFLidarSettings = field(default_factory=BFLidarSettings)
+    device: str = "cpu"               # torch device: auto, cpu, cuda, cuda:N
+    threads: int | None = None        # CPU threads for torch (None: torch's choice)
+    grid_search: bool = False         # pick shadow/occupancy thresholds by depth L1 on the test views (needs GT)
+    evaluate: bool = False            # also write report.json for the mesh
+
+    SETTINGS_META = {"threads": {"range": (1, None)}}
+    GRID_SHADOW_THRESHOLDS = (0.05, 0.15, 0.25, 0.5)
+
+    def validate(self):
+        from ..contract.settings import check_device_name
+
+        check_device_name(self.device)
+
 
 def register(sub) -> None:
-    from .preprocess import add_device_arg, add_preprocess_args
+    from ..contract.settings import add_arguments
+    from .preprocess import DEVICE_FLAGS, PREPROCESS_FLAGS
+
     p = sub.add_parser("baseline", help="Bounce Flash Lidar baseline -> mesh",
                        description="Preprocess the dataset (or reuse --measurements), carve, mesh; optionally "
                                    "grid-search the thresholds on the dataset's test views as the paper did.")
     p.add_argument("dataset", help="dataset directory")
     p.add_argument("--out", required=True, help="output directory (mesh.glb/.ply/.obj, mesh.mesh.json)")
     p.add_argument("--measurements", default=None, help="reuse a preprocess .npz instead of preprocessing")
-    p.add_argument("--voxels", type=int, default=128, help="voxels along the longest axis (default 128)")
-    p.add_argument("--occupancy-threshold", type=float, default=0.3, help="occupancy probability threshold")
-    p.add_argument("--grid-search", action="store_true",
-                   help="pick shadow/occupancy thresholds by depth L1 on the test views (uses ground truth)")
-    p.add_argument("--evaluate", action="store_true", help="also write report.json for the mesh")
-    add_preprocess_args(p)
-    add_device_arg(p)
+    add_arguments(p, BaselineCommand, ("bflidar.voxels", "bflidar.occupancy_threshold", "grid_search", "evaluate")
+                  + PREPROCESS_FLAGS + DEVICE_FLAGS)
     p.set_defaults(func=run)
 
 
+#: top-level names baselines of earlier versions wrote (they kept no record of them)
+BASELINE_ENTRIES = ("mesh.*", "eval")
+#: BF Lidar keeps about 24 bytes per voxel (counts, probability, occupancy, the blurred copy)
+BYTES_PER_VOXEL = 24
+MAX_VOXELS = 1024
+
+
 def run(args) -> int:
+    from ..contract.dataset import DatasetError, load_dataset
+    from ..contract.dataset.staging import StagedDir
+    from ..contract.errors import SettingsError
+    from ..contract.settings import from_args
+    from ..contract.units import format_bytes
+    from ..device import resolve_device
+
+    cmd = from_args(BaselineCommand, args)
+    if cmd.bflidar.voxels > MAX_VOXELS:       # refused up front, with the estimate
+        raise SettingsError("bflidar.voxels", f"{cmd.bflidar.voxels} voxels per side would need about "
+                            f"{format_bytes(BYTES_PER_VOXEL * float(cmd.bflidar.voxels) ** 3)} of memory; at most "
+                            f"{MAX_VOXELS} is supported")
+    device = resolve_device(cmd.device, cmd.threads)
+    ds = load_dataset(args.dataset)
+    if cmd.grid_search and ds.manifest.ground_truth.test_views is None:
+        raise DatasetError(str(ds.root), "ground_truth.test_views", "--grid-search needs test views")
+    with StagedDir(args.out, "baseline", legacy=BASELINE_ENTRIES, marker="mesh.mesh.json") as stage:
+        run_staged(args, cmd, ds, device, stage)
+        stage.commit()      # mesh files, sidecar and evaluation replace the previous ones together
+    return 0
+
+
+def run_staged(args, cmd, ds, device, stage) -> None:
     import time
-    from pathlib import Path
 
     import numpy as np
 
-    from ..bflidar import BFLidarSettings, carve, grid_search
-    from ..dataset import load_dataset
-    from ..evaluate import EvalSettings, depth_metrics, evaluate, render_mesh_depth
+    from ..bflidar import carve, grid_search, test_view_depth_l1
+    from ..contract.errors import MeasurementsError
+    from ..evaluate import EvalSettings, evaluate
     from ..measurements import Measurements
     from ..mesh_export import export_mesh
     from ..preprocess import preprocess_dataset
-    from .preprocess import resolve_device, settings_from_args, summarize
+    from .preprocess import summarize
 
-    device = resolve_device(args.device, args.threads)
-    ds = load_dataset(args.dataset)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = stage.path
     t0 = time.perf_counter()
     if args.measurements:
         meas = Measurements.load(args.measurements)
+        made_from = meas.settings.get("dataset_hash")
+        if made_from is not None and made_from != ds.content_hash():
+            raise MeasurementsError(f"{args.measurements}: measurements were made from another dataset than "
+                                    f"{ds.root} (settings.dataset_hash differs); preprocess this dataset or "
+                                    f"drop --measurements")
     else:
-        meas = preprocess_dataset(ds, settings_from_args(args), device=device, progress=True)
+        meas = preprocess_dataset(ds, cmd.preprocess, device=device, progress=True)
     t_pre = time.perf_counter() - t0
     print(summarize(meas))
-    bs = BFLidarSettings(voxels=args.voxels, occupancy_threshold=args.occupancy_threshold)
+    bs = cmd.bflidar
     t1 = time.perf_counter()
     table = None
-    if args.grid_search:
-        tv = ds.test_views()
-        if tv is None:
-            raise ValueError(f"{ds.root}: --grid-search needs ground_truth.test_views")
-        views, cams, gt = tv
-
-        def score(mesh):
-            pred = np.stack([render_mesh_depth(mesh, c, views.width, views.height, views.fov_rad, views.fov_axis)
-                             for c in cams])
-            return depth_metrics(pred, gt)["depth_l1_m"]
-
-        res, best, table = grid_search(meas, score, bs, shadow_thresholds=(0.05, 0.15, 0.25, 0.5),
+    if cmd.grid_search:
+        views, cams, gt = ds.test_views()
+        score = test_view_depth_l1(cams, gt, views.width, views.height, views.fov_rad, views.fov_axis)
+        res, best, table = grid_search(meas, score, bs, shadow_thresholds=cmd.GRID_SHADOW_THRESHOLDS,
                                        device=device, progress=True)
         print("grid search (shadow threshold, occupancy threshold, depth L1 m):")
         for st, ot, sc in table:
@@ -75,10 +120,9 @@ def run(args) -> int:
     exp = export_mesh(res.occupancy, res.bbox_min, res.bbox_max, res.level, out / "mesh.glb", meta,
                       extra_formats=(".ply", ".obj"))
     print(f"BF Lidar: preprocess {t_pre:.2f} s, carving {t_carve:.2f} s; mesh {exp.n_faces} faces "
-          f"-> {', '.join(str(p) for p in exp.paths)}")
-    if args.evaluate:
+          f"-> {', '.join(str(stage.final(p)) for p in exp.paths)}")
+    if cmd.evaluate:
         rep = evaluate(ds, out / "eval", mesh=exp.mesh, settings=EvalSettings(), progress=True,
                        extra={"method": "bflidar"})
         print(f"depth L1 {rep['depth_l1_m']} m, PSNR {rep['depth_psnr_db']} dB, Chamfer {rep['chamfer_m']} m, "
               f"F-score {rep['fscore']}")
-    return 0

@@ -17,15 +17,18 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..frames import pixel_rays
+from ..contract.frames import pixel_rays
+from ..device import resolve_device
 from ..measurements import Measurements
 from .config import FitConfig
 from .data import build_ray_data
 from .models import build_model
-from .trainer import TrainResult, train
+from .trainer import CHECKPOINT_NAME, TrainResult, train
 
 VOLUME_NAME = "volume.npz"
 REPORT_NAME = "fit.json"
+#: top-level names fits of earlier versions wrote (they kept no record); everything else in --out is the user's
+FIT_ENTRIES = (VOLUME_NAME, REPORT_NAME, "mesh.*", "*.tmp", "*.tmp.npz")
 
 
 @dataclass
@@ -65,14 +68,6 @@ def render_model_depth(model, camera_to_world, width, height, fov_rad, fov_axis=
     return model.render_depth(t(o), t(d), min_opacity=min_opacity).cpu().numpy().reshape(height, width)
 
 
-def resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise ValueError("device: 'cuda' requested but torch sees no CUDA device")
-    return torch.device(name)
-
-
 def measurements_hash(meas: Measurements) -> str:
     h = hashlib.sha256()
     h.update(np.asarray(meas.camera_to_world, np.float64).tobytes())
@@ -97,7 +92,7 @@ def load_source(source, progress: bool = True):
     if (path / "measurements.npz").is_file() and not (path / "dataset.json").is_file():
         m = Measurements.load(path / "measurements.npz")
         return m, measurements_hash(m)
-    from ..dataset import load_dataset
+    from ..contract.dataset import load_dataset
     from ..preprocess import preprocess_dataset
 
     ds = load_dataset(path)
@@ -105,28 +100,41 @@ def load_source(source, progress: bool = True):
     return meas, "dataset:" + ds.content_hash()
 
 
-def fit(source, mode: str = "fast", out=None, config: FitConfig | None = None, on_eval=None,
+def fit(source, mode: str | None = None, out=None, config: FitConfig | None = None, on_eval=None,
         export: bool = True, fault_hook=None, stop_after: int | None = None, uv: bool = True) -> FitResult:
     """Fit a density field to two-bounce measurements and (with `out` and `export`) write the mesh."""
     t_start = time.perf_counter()
-    cfg = config or FitConfig(mode=mode)
-    if config is not None and mode != cfg.mode:
+    cfg = config or (FitConfig(mode=mode) if mode else FitConfig())
+    if mode and mode != cfg.mode:
         cfg = FitConfig.from_dict({**cfg.to_dict(), "mode": mode})
-    torch.set_num_threads(max(1, int(cfg.threads)))
     torch.manual_seed(cfg.seed)
-    dev = resolve_device(cfg.device)
+    dev = resolve_device(cfg.device, cfg.threads)
     meas, src_hash = load_source(source, cfg.progress)
     data = build_ray_data(meas).to(dev)     # refuses unusable measurements before anything is written
+    stage = None
+    if out is not None:     # results are staged and swapped in whole; the checkpoint lives in the target
+        from ..contract.dataset.staging import StagedDir
+        stage = StagedDir(out, "fit", legacy=FIT_ENTRIES, marker=REPORT_NAME, keep=(CHECKPOINT_NAME,))
+    try:
+        return _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, export, fault_hook,
+                              stop_after, uv)
+    finally:
+        if stage is not None:
+            stage.discard()
+
+
+def _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, export, fault_hook, stop_after, uv):
     out_dir = None
-    if out is not None:
-        out_dir = Path(out)
+    if stage is not None:
+        out_dir = stage.target
         out_dir.mkdir(parents=True, exist_ok=True)
     gen = torch.Generator(device=dev)
     gen.manual_seed(cfg.seed)
     meta = {"camera_to_world": np.asarray(meas.camera_to_world), "fov_rad": meas.fov_rad, "fov_axis": meas.fov_axis}
     model = build_model(data, cfg, meta, gen)
     setup = time.perf_counter() - t_start
-    tr = train(model, data, cfg, gen, out_dir, on_eval=on_eval, fault_hook=fault_hook, stop_after=stop_after)
+    tr = train(model, data, cfg, gen, out_dir, on_eval=on_eval, fault_hook=fault_hook, stop_after=stop_after,
+               data_key=src_hash)
     vol, lo, hi = model.density_volume()
     free = model.free_evidence() if hasattr(model, "free_evidence") else None
     result = FitResult(mode=cfg.mode, model=model, train=tr, setup_seconds=setup, total_seconds=0.0,
@@ -136,12 +144,15 @@ def fit(source, mode: str = "fast", out=None, config: FitConfig | None = None, o
                        "device": str(dev), "steps": tr.steps_done, "stopped": tr.stopped,
                        "setup_seconds": round(setup, 3), "train_seconds": round(tr.train_seconds, 3),
                        "nan_restores": tr.nan_restores, "resumed_from": tr.resumed_from}
-    if out_dir is not None:
-        tmp = out_dir / (VOLUME_NAME + ".tmp.npz")
+    if stage is not None and tr.stopped == "interrupted":
+        # Ctrl-C / SIGTERM: the checkpoint is saved for a resume; the previous results stay as they were
+        result.total_seconds = time.perf_counter() - t_start
+        return result
+    if stage is not None:
+        staged = stage.path
         extra = {} if free is None else {"free_evidence": free}
-        np.savez_compressed(tmp, opacity=vol.astype(np.float32), bbox_min=lo, bbox_max=hi, level=cfg.mesh_level,
-                            **extra)
-        tmp.replace(out_dir / VOLUME_NAME)
+        np.savez_compressed(staged / VOLUME_NAME, opacity=vol.astype(np.float32), bbox_min=lo, bbox_max=hi,
+                            level=cfg.mesh_level, **extra)
         if export:
             result.metadata["run_seconds"] = round(time.perf_counter() - t_start, 3)
             from ..mesh_export import MeshExportError
@@ -149,18 +160,20 @@ def fit(source, mode: str = "fast", out=None, config: FitConfig | None = None, o
             try:
                 mvol, mlevel = (model.surface_volume() if hasattr(model, "surface_volume")
                                 else (vol, cfg.mesh_level))
-                result.mesh_files, result.mesh = export_volume(mvol, lo, hi, mlevel, out_dir / "mesh",
-                                                               result.metadata, uv=uv, free_space=free,
-                                                               smooth_iterations=cfg.mesh_smooth_iterations)
+                files, result.mesh = export_volume(mvol, lo, hi, mlevel, staged / "mesh", result.metadata,
+                                                   uv=uv, free_space=free,
+                                                   smooth_iterations=cfg.mesh_smooth_iterations)
+                result.mesh_files = {k: stage.final(v) for k, v in files.items()}
             except MeshExportError as exc:      # e.g. an early stop with nothing occupied yet
                 result.metadata["mesh_error"] = str(exc)
                 warnings.warn(f"no mesh written: {exc}", RuntimeWarning, stacklevel=2)
     result.total_seconds = time.perf_counter() - t_start
     result.metadata["run_seconds"] = round(result.total_seconds, 3)
-    if out_dir is not None:
+    if stage is not None:
         report = {**result.metadata, "mesh_files": {k: str(v) for k, v in result.mesh_files.items()},
                   "history_tail": tr.history[-5:]}
-        (out_dir / REPORT_NAME).write_text(json.dumps(report, indent=2, default=str) + "\n")
+        (stage.path / REPORT_NAME).write_text(json.dumps(report, indent=2, default=str) + "\n")
+        stage.commit()      # volume, mesh files and fit.json replace the previous ones together
     return result
 
 

@@ -27,7 +27,7 @@ def scene_bbox(data: RayData, margin_m: float, quantile: float = 0.001):
     """Robust extent of the observed surface points, the spots and the sensor, grown by `margin_m`.
 
     The sensor is inside: the space between it and the surfaces was measured (free), and the
-    unseen parts of a room next to the sensor are filled from there (see extrude_unseen).
+    unseen parts of a room next to the sensor stay empty: nothing is reported there).
     """
     pts = data.scene_points()
     if len(pts) < 2:
@@ -226,7 +226,7 @@ def fov_xy(width: int, height: int, fov_rad: float, fov_axis: str):
 
 def in_view(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_axis: str) -> torch.Tensor:
     """Voxels (nx, ny, nz) bool whose centre projects into the sensor image (in front of the sensor)."""
-    from ..frames import project_points
+    from ..contract.frames import project_points
 
     pts = box.centres().reshape(-1, 3).cpu().numpy()
     col, row, _ = project_points(camera_to_world, data.width, data.height, fov_rad, pts, fov_axis)
