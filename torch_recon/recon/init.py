@@ -26,8 +26,8 @@ from .sampler import marching_intervals, ray_box
 def scene_bbox(data: RayData, margin_m: float, quantile: float = 0.001):
     """Robust extent of the observed surface points, the spots and the sensor, grown by `margin_m`.
 
-    The sensor is inside: the space between it and the surfaces was measured (free), and the
-    unseen parts of a room next to the sensor stay empty: nothing is reported there).
+    The sensor is inside: the space between it and the surfaces was measured (free); the unseen
+    parts of a room next to the sensor stay empty (nothing is reported there).
     """
     pts = data.scene_points()
     if len(pts) < 2:
