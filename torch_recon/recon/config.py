@@ -58,7 +58,9 @@ class FastConfig:
     step_voxels: float = 0.5          # ray marching step in voxels
     secondary_offset_voxels: float = 1.5  # secondary rays x -> l skip this much next to x and l
     tv_weight: float = 1e-4           # total-variation smoothness on the raw density
-    lr: float = 0.2                   # Adam on raw density (range about -10..4): 0.01 left the initial field
+    lr: float = 0.05                  # Adam on raw density; with the ramp at 4 per voxel the surface moves
+                                      # at most lr / 4 voxel a step (0.2 with the old slope 16, same motion).
+                                      # Session 2 (slope 16): 0.01 left the initial field
                                       # unchanged, 0.5 tore holes (docs/reconstruction.md, measured)
     rays_per_batch: int = 4096
     steps: int = 200                  # 400 at lr 0.2 gained 0.0004 m L1 / 0.03 dB over 200 (cave-chair 128 px)
