@@ -67,6 +67,8 @@ class SimulationConfig:
     test_views_dolly: int = 39             # 0 to skip
     test_views_orbit: int = 100
     test_view_resolution: int = 128
+    test_view_trajectory: str = "scene"    # 'scene': dolly + orbit around the scene's objects, each camera
+                                           # checked to be in free space; 'paper': the paper's 139-view preset
     gt_mesh: bool = True
     spots: list = field(default_factory=list)  # list[SpotConfig]; empty -> random spots
     random_candidates: int = 24
@@ -96,6 +98,8 @@ class SimulationConfig:
                 bad(name, f"expected a {'positive' if positive else 'non-negative'} finite number, got {v!r}")
         if self.wavelength_filter_factor > 1:
             bad("wavelength_filter_factor", f"expected a fraction in [0, 1], got {self.wavelength_filter_factor}")
+        if self.test_view_trajectory not in ("scene", "paper"):
+            bad("test_view_trajectory", f"expected 'scene' or 'paper', got {self.test_view_trajectory!r}")
         if self.pulse_shape not in ("gaussian", "box"):
             bad("pulse_shape", f"expected 'gaussian' or 'box', got {self.pulse_shape!r}")
         if self.bounces not in (2, 3):

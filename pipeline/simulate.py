@@ -58,7 +58,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "instead of the bpy module")
     ap.add_argument("--out", required=True, help="dataset directory to write (replaced atomically)")
     ap.add_argument("--example", help="build an example scene instead of a .blend: "
-                    "cave-chair, monkey, occluders, curved-wall, low-albedo, ambient")
+                    "cave-chair, monkey, occluders, curved-wall, low-albedo, ambient, organic-occluded, "
+                    "thin-structures, dark-room, outside-fov")
     ap.add_argument("--config", help="SimulationConfig JSON file (e.g. exported by the add-on)")
     ap.add_argument("--camera", help="camera object (default: the scene camera)")
     ap.add_argument("--resolution", type=int, help="N: an N x N sensor")

@@ -16,7 +16,7 @@ import json
 import math
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import bpy
 import numpy as np
@@ -246,6 +246,8 @@ class RunContext:
     mesh: object
     vpl: object
     timings: dict
+    objects: dict = field(default_factory=dict)   # {label: (trimesh, part names)}: the GT writer's objects
+    room_mesh: object = None                      # the GT without those objects
 
 
 def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
@@ -305,6 +307,8 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
         ctx = RunContext(cfg, scene_label, renderer, sensor, noise, geometry, g_bound, ambient_scale, common,
                          _previous_dataset(out_dir), ground_truth.scene_mesh(triangles[0], triangles[1]),
                          third_bounce.ThirdBounce(scene, depsgraph, cfg) if cfg.bounces == 3 else None, timings)
+        ctx.objects = ground_truth.object_meshes(*triangles, labelled=bs.labelled_objects())
+        ctx.room_mesh = ground_truth.room_mesh(triangles, ctx.objects)
         while True:   # a second pass only if a spot's signal outgrew the geometric window bound
             try:
                 write_dataset(out_dir, plans, ctx)
@@ -398,7 +402,7 @@ def write_dataset(out_dir, plans, ctx: RunContext):
             log(f"spot {k + 1}/{len(plans)} (id {p.id}, {p.name}): l = {np.round(p.first_bounce, 3).tolist()}, "
                 f"albedo {p.albedo:.2f}, {what} in {dt:.2f} s")
         t0 = time.perf_counter()
-        gt = ground_truth.write_ground_truth(writer, ctx.mesh, ctx.sensor, cfg)
+        gt = ground_truth.write_ground_truth(writer, ctx.mesh, ctx.sensor, cfg, ctx.objects, ctx.room_mesh)
         timings["ground_truth_s"] = time.perf_counter() - t0
         manifest = Manifest(sensor=ctx.sensor, spots=spots, layout=layout, noise=ctx.noise, ground_truth=gt,
                             rgb_files=rgb_files,

@@ -49,6 +49,9 @@ def test_real_capture_preprocess_and_fit(real_capture, tmp_path):
     tmp, mesh, sensor, ls, lit, paths = real_capture
     assert main(["convert", "from-platonerf-real", str(tmp / "mat"), str(tmp_path / "ds")]) == 0
     meas = preprocess_dataset(load_dataset(tmp_path / "ds"))
+    from torch_recon.measurements import Measurements
+    again = Measurements.load(meas.save(tmp_path / "m.npz"))       # the per-pixel rays travel with them
+    assert again.ray_directions is not None and np.array_equal(again.pixel_directions(), meas.pixel_directions())
     from torch_recon.contract.analytic import range_image
     truth = range_image(mesh, sensor.camera_to_world, RES, RES, sensor.fov_rad)
     ok = np.isfinite(meas.visible_depth)

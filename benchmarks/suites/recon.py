@@ -16,7 +16,6 @@ from dataclasses import dataclass
 
 from benchmarks.harness import Refused, Suite, report, runners
 
-PAPER = {"depth_l1_m": 0.0862, "depth_psnr_db": 26.58}
 VARIANTS = {"fast, init only": ("steps=0", "fast.coarse_fraction=0"),
             "fast, no carving": ("fast.carve_min_lit=1000000",),
             "fast, no pruning": ("fast.occupancy_threshold=-1",)}
@@ -79,6 +78,7 @@ def readme(results) -> str:
 
 SUITE = Suite("recon", __doc__.splitlines()[0], run=run, readme=readme,
               plot=lambda rows, s, path: report.plot_rows(rows, path, y="depth_l1_m", label="label",
+                                                          hline=report.paper_line(),
                                                           title="cave-chair, ideal measurements"),
               quick=Settings(resolution=32, grid=48, budget_s=30.0, reference_budget_s=15.0, variants=False,
                              test_views=6, test_view_resolution=32),

@@ -49,13 +49,14 @@ def run(args) -> int:
             raise SettingsError(key, f"expected a number > 0, got {v}")
     if args.window_bins is not None and args.window_bins < 1:
         raise SettingsError("window-bins", f"expected at least 1, got {args.window_bins}")
+    if args.spots < 1:
+        raise SettingsError("spots", f"expected at least 1, got {args.spots}")
     if args.direction == "from-platonerf":
         ds = import_platonerf(args.src, args.dst, bin_width_ps=args.bin_ps, bin_width_m=args.bin_m,
                               pulse_fwhm_ps=args.pulse_fwhm_ps, window_bins=args.window_bins, ignore=args.ignore,
                               train_depth=args.train_depth)
-        n_on = len(ds.manifest.enabled_spots)
         gt = ds.manifest.ground_truth
-        print(f"imported {len(ds.manifest.spots)} spots ({n_on} enabled)"
+        print(f"imported {len(ds.manifest.spots)} spots ({len(ds.manifest.enabled_spots)} enabled)"
               + (f", {len(gt.test_views.camera_to_world)} test views" if gt.test_views else "") + f" -> {ds.root}")
     elif args.direction == "from-platonerf-real":
         from ..contract.dataset.platonerf_real import import_platonerf_real

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 
-EVAL_FLAGS = ("fscore_threshold_m", "n_surface_samples", "miss_depth", "cull_back_faces", "error_images", "seed")
+EVAL_FLAGS = ("fscore_threshold_m", "n_surface_samples", "miss_depth", "cull_back_faces", "error_images", "seed",
+              "objects", "pictures", "picture_size", "check_test_views", "view_clearance_m")
 
 
 def register(sub) -> None:
@@ -54,5 +55,17 @@ def run(args) -> int:
           f"reconstruction misses {rep.get('n_reconstruction_misses', 0)}")
     print(f"depth L1 {fmt(rep['depth_l1_m'], '.4f')} m   depth PSNR {fmt(rep['depth_psnr_db'], '.2f')} dB   "
           f"Chamfer {fmt(rep['chamfer_m'], '.4f')} m   F-score@{s.fscore_threshold_m} {fmt(rep['fscore'], '.3f')}")
+    n_bad = rep.get("n_test_views_invalid", 0)
+    if n_bad:
+        print(f"test views dropped (camera not in free space): {n_bad}")
+    om = rep.get("object_metrics")
+    if om and om.get("summary"):
+        su, sc = om["summary"], om["scene"]
+        print(f"objects ({', '.join(om['objects'])}): F@1/2/5cm {fmt(su.get('fscore@1cm'), '.3f')} / "
+              f"{fmt(su.get('fscore@2cm'), '.3f')} / {fmt(su.get('fscore@5cm'), '.3f')}   hidden recall@2cm "
+              f"{fmt(su.get('recall_hidden@2cm'), '.3f')}   spurious {fmt(sc.get('spurious_fraction'), '.3f')}   "
+              f"degenerate faces {sc.get('degenerate_faces')}")
+    if rep.get("pictures"):
+        print(f"summary -> {args.out}/summary.html, {args.out}/summary.png")
     print(f"report -> {args.out}/report.json")
     return 0

@@ -288,6 +288,8 @@ class GroundTruthViews:
     fov_axis: str
     camera_to_world: list        # list of 4x4
     depth_file: str              # EXR of shape (N*H, W), channel 'range'; inf where nothing is hit
+    trajectory: str | None = None  # 'scene' (dolly + orbit around the objects) or 'paper' (the 139-view preset)
+    n_invalid: int = 0           # requested views dropped because the camera was not in free space
 
     @classmethod
     def from_dict(cls, d, ck: _Checker, path: str):
@@ -300,7 +302,29 @@ class GroundTruthViews:
                    fov_axis=ck.string(d, "fov_axis", f"{path}.fov_axis", choices=("x", "y")),
                    camera_to_world=[ck.matrix4({"m": m}, "m", f"{path}.camera_to_world[{i}]")
                                     for i, m in enumerate(cams)],
-                   depth_file=ck.string(d, "depth_file", f"{path}.depth_file"))
+                   depth_file=ck.string(d, "depth_file", f"{path}.depth_file"),
+                   trajectory=ck.string(d, "trajectory", f"{path}.trajectory", default=None,
+                                        choices=("scene", "paper")),
+                   n_invalid=ck.integer(d, "n_invalid", f"{path}.n_invalid", default=0, minimum=0))
+
+
+@dataclass
+class GroundTruthObject:
+    """One labelled object of the scene (the rest of the GT mesh is the room)."""
+
+    name: str                    # label: a child collection of 'Objects', or an object's name
+    mesh_file: str               # .ply in the world frame (its triangles are also in ground_truth.mesh_file)
+    parts: list = field(default_factory=list)   # Blender object names that make it
+
+    @classmethod
+    def from_dict(cls, d, ck: _Checker, path: str):
+        parts = ck.get(d, "parts", f"{path}.parts", default=[])
+        if not isinstance(parts, list) or not all(isinstance(p, str) for p in parts):
+            ck.fail(f"{path}.parts", f"expected a list of object names, got {parts!r}")
+        name = ck.string(d, "name", f"{path}.name")
+        if not name.strip():
+            ck.fail(f"{path}.name", "expected a non-empty label")
+        return cls(name=name, mesh_file=ck.string(d, "mesh_file", f"{path}.mesh_file"), parts=parts)
 
 
 @dataclass
@@ -308,13 +332,24 @@ class GroundTruth:
     train_depth_file: str | None = None   # EXR (H, W) channel 'range' (m along the pixel ray; inf = no hit)
     mesh_file: str | None = None          # .ply in the world frame
     test_views: GroundTruthViews | None = None
+    objects: list = field(default_factory=list)   # list[GroundTruthObject]: the objects that matter
 
     @classmethod
     def from_dict(cls, d, ck: _Checker, path: str):
         tv = ck.get(d, "test_views", f"{path}.test_views", default=None)
+        objs = ck.get(d, "objects", f"{path}.objects", default=[])
+        if not isinstance(objs, list):
+            ck.fail(f"{path}.objects", "expected a list of objects")
+        objects = [GroundTruthObject.from_dict(o, ck, f"{path}.objects[{i}]") for i, o in enumerate(objs)]
+        seen = set()
+        for i, o in enumerate(objects):
+            if o.name in seen:
+                ck.fail(f"{path}.objects[{i}].name", f"label {o.name!r} appears twice")
+            seen.add(o.name)
         return cls(train_depth_file=ck.string(d, "train_depth_file", f"{path}.train_depth_file", default=None),
                    mesh_file=ck.string(d, "mesh_file", f"{path}.mesh_file", default=None),
-                   test_views=None if tv is None else GroundTruthViews.from_dict(tv, ck, f"{path}.test_views"))
+                   test_views=None if tv is None else GroundTruthViews.from_dict(tv, ck, f"{path}.test_views"),
+                   objects=objects)
 
 
 @dataclass

@@ -83,6 +83,10 @@ class Dataset:
             rel = getattr(gt, name)
             if rel is not None and not (self.root / rel).is_file():
                 raise DatasetError(str(self.root / rel), f"ground_truth.{name}", "file is missing")
+        for i, o in enumerate(gt.objects):
+            if not (self.root / o.mesh_file).is_file():
+                raise DatasetError(str(self.root / o.mesh_file), f"ground_truth.objects[{i}].mesh_file",
+                                   "file is missing")
         if gt.test_views is not None and not (self.root / gt.test_views.depth_file).is_file():
             raise DatasetError(str(self.root / gt.test_views.depth_file), "ground_truth.test_views.depth_file",
                                "file is missing")
