@@ -90,6 +90,23 @@ def test_marching_cubes_normals_point_out_of_the_occupied_region():
     assert outward.all()
 
 
+def test_only_faces_facing_measured_free_space_are_kept_and_none_is_degenerate():
+    """A slab touching the box (a wall seen from one side): only its measured face comes out, flat,
+    without the box-clamped lids (zero-area faces) or the unmeasured back; Taubin keeps it in place."""
+    from torch_recon.mesh_export import mesh_from_volume
+
+    g = np.linspace(-1, 1, 21)
+    x, _, _ = np.meshgrid(g, g, g, indexing="ij")
+    slab = (x > 0.25).astype(np.float32)                 # occupied from x = 0.25 to the box face
+    free = x < 0.2                                       # measured empty in front of it only
+    raw, _ = mesh_from_volume(slab, [-1, -1, -1], [1, 1, 1], 0.5)
+    assert (np.abs(raw.vertices[:, 0] - 1.0) < 1e-9).any()          # the unmeasured lid at the box face
+    mesh, _ = mesh_from_volume(slab, [-1, -1, -1], [1, 1, 1], 0.5, free_space=free, smooth_iterations=10)
+    assert len(mesh.faces) > 0 and int((mesh.area_faces < 1e-12).sum()) == 0
+    assert np.allclose(mesh.vertices[:, 0], 0.25, atol=1e-6)          # one flat face at the iso crossing
+    assert (mesh.face_normals[:, 0] < -0.99).all()                    # facing the free side
+
+
 def test_one_sided_rendering_sees_past_a_wall_the_camera_is_inside():
     """A camera 1 cm inside a reconstructed slab (as the paper's orbit view near the back wall
     can be) sees the scene beyond the slab's face, not the slab from inside; two-sided it does not."""

@@ -1,7 +1,8 @@
 """Occupancy/density volume -> mesh file that Blender imports in place, plus a sidecar JSON.
 
-Pipeline: marching cubes (scikit-image) -> drop small islands (trimesh) -> UV
-unwrap (xatlas) -> .ply / .obj / .glb.
+Pipeline: marching cubes (scikit-image) -> (optional) keep only faces facing measured free space ->
+(optional) Taubin smoothing -> drop small islands -> drop zero-area faces, merge vertices (trimesh) ->
+UV unwrap (xatlas) -> .ply / .obj / .glb.
 
 Volume convention: `volume[i, j, k]` is the value at the grid point
 bbox_min + (i, j, k) * (bbox_max - bbox_min) / (shape - 1), world (Blender, Z-up)
@@ -64,8 +65,15 @@ def _as_numpy(volume) -> np.ndarray:
 
 
 def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: bool = True,
-                     min_island_fraction: float = 0.01):
-    """Marching cubes + small-island removal -> (trimesh.Trimesh in world frame, islands removed)."""
+                     min_island_fraction: float = 0.01, free_space=None, smooth_iterations: int = 0):
+    """Marching cubes + small-island removal -> (trimesh.Trimesh in world frame, islands removed).
+
+    free_space: optional bool volume on the same grid points, True where the measurements say the
+    space is empty; only faces whose outward side lies in it are kept (a surface facing space nobody
+    measured, e.g. the back of a wall or the box's faces, is not reported). smooth_iterations: Taubin
+    (lambda | mu) smoothing, which removes marching-cubes terracing without shrinking the volume.
+    Faces of zero area are removed and coincident vertices merged in every case.
+    """
     import trimesh
     from skimage.measure import marching_cubes
 
@@ -77,6 +85,8 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
     if not (v.min() < level < v.max()):
         raise MeshExportError(f"level {level} is outside the volume's range [{v.min():.4g}, {v.max():.4g}]: "
                               f"no surface (nothing occupied, or everything)")
+    if free_space is not None and np.shape(free_space) != v.shape:
+        raise MeshExportError(f"free_space has shape {np.shape(free_space)}, expected the volume's {v.shape}")
     origin = lo
     if close_boundary:   # a surface touching the box is closed instead of left open
         v = np.pad(v, 1, mode="constant", constant_values=min(float(v.min()), level - 1.0))
@@ -85,6 +95,10 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
     # scikit-image winds its triangles so that their normals point into the larger values (the
     # occupied side); reverse them: outward normals, positive volume, correct shading and culling
     mesh = trimesh.Trimesh(verts + origin, np.ascontiguousarray(faces[:, ::-1]), process=True)
+    if free_space is not None:
+        mesh = _faces_facing_free(mesh, np.asarray(free_space, bool), lo, spacing)
+    if smooth_iterations > 0 and len(mesh.faces):
+        trimesh.smoothing.filter_taubin(mesh, lamb=0.5, nu=0.53, iterations=int(smooth_iterations))
     removed = 0
     if min_island_fraction > 0 and len(mesh.faces):
         parts = mesh.split(only_watertight=False)
@@ -95,7 +109,33 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
             mesh = trimesh.util.concatenate(keep)
     if close_boundary:   # the padded ring lies just outside the box: clamp it onto the box faces
         mesh.vertices = np.clip(mesh.vertices, lo, hi)
-    return mesh, removed
+    return _without_degenerate(mesh), removed
+
+
+def _without_degenerate(mesh):
+    """Drop zero-area faces (e.g. collapsed by the clamp onto the box) and merge coincident vertices."""
+    mesh.merge_vertices()
+    mesh.update_faces(mesh.nondegenerate_faces(height=1e-9))
+    mesh.remove_unreferenced_vertices()
+    return mesh
+
+
+def _faces_facing_free(mesh, free, lo, spacing):
+    """Keep the faces whose outward side (0.5 to 1.5 grid steps along the normal) is known free space."""
+    if len(mesh.faces) == 0:
+        return mesh
+    c = mesh.triangles_center
+    n = mesh.face_normals
+    shape = np.array(free.shape)
+    keep = np.zeros(len(c), bool)
+    for s in (0.5, 1.0, 1.5):
+        g = np.rint((c + s * spacing * n - lo) / spacing).astype(np.int64)
+        inside = np.all((g >= 0) & (g < shape), 1)
+        gi = np.clip(g, 0, shape - 1)
+        keep |= inside & free[gi[:, 0], gi[:, 1], gi[:, 2]]
+    mesh.update_faces(keep)
+    mesh.remove_unreferenced_vertices()
+    return mesh
 
 
 def _split_faces(centroids, idx, max_faces):
@@ -186,7 +226,8 @@ def sidecar_path(out_path) -> Path:
 
 
 def export_mesh(volume, bbox_min, bbox_max, level, out_path, metadata=None, *, extra_formats=(), uv=True,
-                close_boundary=True, min_island_fraction=0.01, max_uv_faces=1_000_000) -> ExportResult:
+                close_boundary=True, min_island_fraction=0.01, max_uv_faces=1_000_000, free_space=None,
+                smooth_iterations: int = 0) -> ExportResult:
     """Volume -> mesh file(s) in the Blender world frame + `<stem>.mesh.json` with metadata.
 
     metadata: JSON-able dict from the caller (method, settings, run time, dataset hash, ...);
@@ -204,7 +245,8 @@ def export_mesh(volume, bbox_min, bbox_max, level, out_path, metadata=None, *, e
         json.dumps(metadata or {})
     except TypeError as exc:
         raise MeshExportError(f"metadata must be JSON-serialisable: {exc}") from None
-    mesh, removed = mesh_from_volume(volume, bbox_min, bbox_max, level, close_boundary, min_island_fraction)
+    mesh, removed = mesh_from_volume(volume, bbox_min, bbox_max, level, close_boundary, min_island_fraction,
+                                     free_space=free_space, smooth_iterations=smooth_iterations)
     uv_done = False
     if uv and len(mesh.faces) <= max_uv_faces:
         mesh = uv_unwrap(mesh)
@@ -224,7 +266,9 @@ def export_mesh(volume, bbox_min, bbox_max, level, out_path, metadata=None, *, e
             "volume": {"shape": shape, "bbox_min": np.asarray(bbox_min, float).tolist(),
                        "bbox_max": np.asarray(bbox_max, float).tolist(), "level": float(level),
                        "sample_convention": "grid points span the bbox (corner-aligned)",
-                       "close_boundary": bool(close_boundary), "min_island_fraction": float(min_island_fraction)},
+                       "close_boundary": bool(close_boundary), "min_island_fraction": float(min_island_fraction),
+                       "faces_facing_measured_free_space_only": free_space is not None,
+                       "taubin_iterations": int(smooth_iterations)},
             "export_seconds": round(seconds, 4),
             "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds")}
     sc = sidecar_path(out_path)

@@ -137,6 +137,7 @@ def _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, expo
     tr = train(model, data, cfg, gen, out_dir, on_eval=on_eval, fault_hook=fault_hook, stop_after=stop_after,
                data_key=src_hash)
     vol, lo, hi = model.density_volume()
+    free = model.free_evidence() if hasattr(model, "free_evidence") else None
     result = FitResult(mode=cfg.mode, model=model, train=tr, setup_seconds=setup, total_seconds=0.0,
                        volume=vol, bbox_min=lo, bbox_max=hi, level=cfg.mesh_level, source_hash=src_hash,
                        out_dir=out_dir)
@@ -152,15 +153,19 @@ def _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, expo
         return result
     if stage is not None:
         staged = stage.path
+        extra = {} if free is None else {"free_evidence": free}
         np.savez_compressed(staged / VOLUME_NAME, opacity=vol.astype(np.float32), bbox_min=lo, bbox_max=hi,
-                            level=cfg.mesh_level)
+                            level=cfg.mesh_level, **extra)
         if export:
             result.metadata["run_seconds"] = round(time.perf_counter() - t_start, 3)
             from ..mesh_export import MeshExportError
 
             try:
-                files, result.mesh = export_volume(vol, lo, hi, cfg.mesh_level, staged / "mesh",
-                                                   result.metadata, uv=uv)
+                mvol, mlevel = (model.surface_volume() if hasattr(model, "surface_volume")
+                                else (vol, cfg.mesh_level))
+                files, result.mesh = export_volume(mvol, lo, hi, mlevel, staged / "mesh", result.metadata,
+                                                   uv=uv, free_space=free,
+                                                   smooth_iterations=cfg.mesh_smooth_iterations)
                 result.mesh_files = {k: stage.final(v) for k, v in files.items()}
             except MeshExportError as exc:      # e.g. an early stop with nothing occupied yet
                 result.metadata["mesh_error"] = str(exc)
@@ -175,8 +180,12 @@ def _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, expo
     return result
 
 
-def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: dict, uv: bool = True):
+def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: dict, uv: bool = True,
+                  free_space=None, smooth_iterations: int = 0):
     """Marching cubes + cleanup + UVs -> .glb (+ .ply, .obj) through the shared mesh exporter.
+
+    free_space (same shape as volume, bool): report only surfaces facing measured free space;
+    smooth_iterations: Taubin smoothing passes (see mesh_export.mesh_from_volume).
 
     Our values sit at voxel centres; the exporter's grid points span its bbox corner to corner, so
     it gets the box of the centres.
@@ -186,7 +195,8 @@ def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: d
     lo, hi = np.asarray(bbox_min, np.float64), np.asarray(bbox_max, np.float64)
     half = 0.5 * (hi - lo) / np.asarray(np.shape(volume), np.float64)
     res = export_mesh(volume, lo + half, hi - half, level, Path(out_path).with_suffix(".glb"), metadata,
-                      extra_formats=(".ply", ".obj"), uv=uv)
+                      extra_formats=(".ply", ".obj"), uv=uv, free_space=free_space,
+                      smooth_iterations=smooth_iterations)
     files = {p.suffix.lstrip("."): p for p in res.paths}
     files["sidecar"] = res.sidecar
     return files, res.mesh

@@ -48,11 +48,9 @@ class FastConfig:
     density_scale: float = 50.0       # sigma = density_scale * softplus(raw), in 1 / m
     raw_free: float = -10.0           # raw density of free space at initialisation (sigma ~ 0.002 / m)
     raw_occupied: float = 4.0         # raw density of occupied space (sigma ~ 200 / m: opaque in 1 voxel)
-    surface_slope: float = 16.0       # raw-density ramp per voxel across visible surfaces at init (0: binary)
-    hidden_thickness_m: float | None = 0.3  # hidden, uncarved space is filled only this far behind the
-                                      # visible surface (None: all of it, BF Lidar's shadow hull)
-    shell_voxels: float = 2.0         # ... and this close to the box faces (walls, floor, ceiling)
-    fill_min_shadow: int = 2          # ... and where at least this many shadowed secondary rays pass (0: off)
+    surface_slope: float = 4.0        # raw-density ramp per voxel across visible surfaces at init (0: binary);
+                                      # 16 left the raw field binary at voxel centres (terraced meshes)
+    surface_half_width_voxels: float = 2.0  # the signed-distance ramp spans +- this around visible surfaces
     carve_core: float = 0.3           # a lit ray carves a voxel only through its central 0.6-voxel cube
     carve_spacing_voxels: float = 1.0  # carve with pixels about this many voxels apart at the far surfaces
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
@@ -62,7 +60,9 @@ class FastConfig:
     step_voxels: float = 0.5          # ray marching step in voxels
     secondary_offset_voxels: float = 1.5  # secondary rays x -> l skip this much next to x and l
     tv_weight: float = 1e-4           # total-variation smoothness on the raw density
-    lr: float = 0.2                   # Adam on raw density (range about -10..4): 0.01 left the initial field
+    lr: float = 0.05                  # Adam on raw density; with the ramp at 4 per voxel the surface moves
+                                      # at most lr / 4 voxel a step (0.2 with the old slope 16, same motion).
+                                      # Session 2 (slope 16): 0.01 left the initial field
                                       # unchanged, 0.5 tore holes (docs/reconstruction.md, measured)
     rays_per_batch: int = 4096
     steps: int = 200                  # 400 at lr 0.2 gained 0.0004 m L1 / 0.03 dB over 200 (cave-chair 128 px)
@@ -108,6 +108,7 @@ class FitConfig:
     progress: bool = True
     eval_every_s: float | None = None  # benchmark hook: call `on_eval` this often (seconds of training)
     mesh_level: float = 0.5           # iso level on opacity over one voxel
+    mesh_smooth_iterations: int = 10  # Taubin smoothing passes on the exported mesh (0: raw marching cubes)
     loss: LossConfig = field(default_factory=LossConfig)
     fast: FastConfig = field(default_factory=FastConfig)
     platonerf: PlatoNeRFConfig = field(default_factory=PlatoNeRFConfig)

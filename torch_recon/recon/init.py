@@ -5,8 +5,10 @@ Evidence, voxel by voxel (priority top to bottom):
 2. crossed by a camera ray before its visible surface: free;
 3. crossed by at least `carve_min_lit` lit secondary rays x -> l: free (shadow carving);
 4. otherwise (hidden from the sensor and never lit through): occupied, the shadow hull of BF Lidar.
-Outside the sensor's field of view nothing was measured; those voxels copy the nearest measured
-cross-section along the viewing axis (a room's floor, walls and ceiling continue towards the sensor).
+Near visible surfaces the raw density is a ramp in the point-to-plane signed distance to the measured
+surface (normals from the depth image), so planar walls start planar at sub-voxel accuracy.
+Which voxels are known free (2 and 3) is kept: the mesh exporter reports only surfaces that face
+measured free space (`free_evidence`); nothing is invented where nothing was measured.
 """
 
 from __future__ import annotations
@@ -24,8 +26,8 @@ from .sampler import marching_intervals, ray_box
 def scene_bbox(data: RayData, margin_m: float, quantile: float = 0.001):
     """Robust extent of the observed surface points, the spots and the sensor, grown by `margin_m`.
 
-    The sensor is inside: the space between it and the surfaces was measured (free), and the
-    unseen parts of a room next to the sensor are filled from there (see extrude_unseen).
+    The sensor is inside: the space between it and the surfaces was measured (free); the unseen
+    parts of a room next to the sensor stay empty (nothing is reported there).
     """
     pts = data.scene_points()
     if len(pts) < 2:
@@ -59,20 +61,81 @@ def _accumulate(box: GridBox, origins, dirs, near, far, step, counts, chunk_samp
         counts += torch.bincount(flat[keep], minlength=counts.numel())
 
 
-def _accumulate_signed(box: GridBox, origins, dirs, depth, half_width, step, sums, counts, chunk_samples=1 << 22):
-    """For samples within +-half_width of each ray's surface depth: per-voxel sum of (t - depth) and count."""
-    n_per = int(2 * half_width / step) + 1
-    k = (torch.arange(n_per, device=origins.device, dtype=origins.dtype) - (n_per - 1) / 2) * step
-    nx, ny, nz = box.shape
-    rays = max(1, chunk_samples // n_per)
-    for i in range(0, origins.shape[0], rays):
-        t = depth[i:i + rays, None] + k
-        pts = origins[i:i + rays, None] + dirs[i:i + rays, None] * t[..., None]
-        idx, inside = box.cell_index(pts)
-        flat = ((idx[..., 0] * ny + idx[..., 1]) * nz + idx[..., 2])[inside]
-        sd = k.expand_as(t)[inside]
-        sums += torch.bincount(flat, weights=sd.double(), minlength=sums.numel())
-        counts += torch.bincount(flat, minlength=counts.numel())
+def _depth_normals(x: np.ndarray, valid: np.ndarray, c: np.ndarray, max_jump: np.ndarray, span: int = 2):
+    """Unit normals (H, W, 3) of the visible surface, facing the sensor, from the point image x (H, W, 3).
+
+    Tangents are differences over `span` pixels, one-sided towards the neighbour closer in range (so a
+    depth edge does not tilt the normal); where both sides jump by more than `max_jump` (a part about a
+    pixel wide) the normal faces the sensor. NaN where the pixel is not valid.
+    """
+    xp = np.pad(np.where(valid[..., None], x, np.nan), ((span, span), (span, span), (0, 0)),
+                constant_values=np.nan)
+    h, w = valid.shape
+
+    def tangent(di, dj):
+        fwd = xp[span + di:span + di + h, span + dj:span + dj + w] - x
+        bwd = x - xp[span - di:span - di + h, span - dj:span - dj + w]
+        lf = np.nan_to_num(np.linalg.norm(fwd, axis=-1), nan=np.inf)
+        lb = np.nan_to_num(np.linalg.norm(bwd, axis=-1), nan=np.inf)
+        t = np.where((lf <= lb)[..., None], fwd, bwd)
+        return np.nan_to_num(t), np.minimum(lf, lb) <= span * max_jump
+
+    tu, gu = tangent(0, span)
+    tv, gv = tangent(span, 0)
+    n = np.cross(tu, tv)
+    nn = np.linalg.norm(n, axis=-1, keepdims=True)
+    view = c - x
+    view /= np.maximum(np.linalg.norm(view, axis=-1, keepdims=True), 1e-12)
+    ok = gu & gv & (nn[..., 0] > 1e-12)
+    n = np.where(ok[..., None], n / np.maximum(nn, 1e-12), view)
+    n *= np.sign((n * view).sum(-1, keepdims=True) + 1e-12)
+    n[~valid] = np.nan
+    return n
+
+
+def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: float = 2.0, k: int = 4):
+    """Point-to-plane signed distance (m, + behind the surface) of voxel centres within `half_width_voxels`
+    of the visible surface (NaN elsewhere): the mean over the k nearest measured points of their tangent
+    planes, leaving out planes that disagree with the nearest by more than a voxel (another surface).
+    Planar walls give an exactly linear field, so the iso-surface is flat (no grid-aligned steps)."""
+    from scipy.spatial import cKDTree
+
+    h, w = data.height, data.width
+    c = data.sensor_origin.cpu().numpy().astype(np.float64)
+    d = data.visible_depth.cpu().numpy().reshape(h, w).astype(np.float64)
+    dirs = data.pixel_dirs.cpu().numpy().reshape(h, w, 3).astype(np.float64)
+    valid = np.isfinite(d)
+    x = c + dirs * np.where(valid, d, 0.0)[..., None]
+    pix_angle = float(np.arccos(np.clip((dirs[0, 0] * dirs[0, 1]).sum(), -1, 1))) if w > 1 else 1e-3
+    max_jump = 3.0 * pix_angle * np.where(valid, d, 0.0)[..., None][..., 0] + 0.5 * box.voxel
+    normals = _depth_normals(x, valid, c, max_jump)
+    pts, nrm = x[valid], normals[valid]
+    sd = np.full(box.shape, np.nan, np.float32)
+    if len(pts) == 0:
+        return torch.from_numpy(sd)
+    lo = box.bbox_min.cpu().numpy().astype(np.float64)
+    # candidate voxels: the cells holding a surface point, dilated by the half width
+    idx = np.floor((pts - lo) / box.voxel).astype(np.int64)
+    inside = np.all((idx >= 0) & (idx < np.array(box.shape)), 1)
+    occ = torch.zeros(box.shape, dtype=torch.float32)
+    occ[tuple(torch.from_numpy(idx[inside]).T)] = 1.0
+    r = int(math.ceil(half_width_voxels)) + 1
+    occ = torch.nn.functional.max_pool3d(occ[None, None], 2 * r + 1, 1, r)[0, 0] > 0
+    cand = torch.nonzero(occ, as_tuple=False).numpy()
+    centres = lo + (cand + 0.5) * box.voxel
+    tree = cKDTree(pts)
+    k = min(k, len(pts))
+    dist, j = tree.query(centres, k=k, distance_upper_bound=(half_width_voxels + 1.0) * box.voxel)
+    dist, j = dist.reshape(len(cand), k), j.reshape(len(cand), k)
+    found = np.isfinite(dist)
+    jj = np.where(found, j, 0)
+    plane = ((pts[jj] - centres[:, None]) * nrm[jj]).sum(-1)          # + behind the surface
+    agree = found & (np.abs(plane - plane[:, :1]) <= box.voxel)
+    wgt = agree * np.exp(-(np.where(found, dist, 0.0) / box.voxel) ** 2)
+    val = (wgt * plane).sum(1) / np.maximum(wgt.sum(1), 1e-12)
+    keep = found[:, 0] & (np.abs(val) <= half_width_voxels * box.voxel)
+    sd[tuple(cand[keep].T)] = val[keep]
+    return torch.from_numpy(sd)
 
 
 def surface_offset(density_scale: float, voxel: float, slope: float) -> float:
@@ -116,8 +179,8 @@ def _pixel_stride(data: RayData, voxel: float, spacing_voxels: float = 1.0) -> i
 def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.0, carve_min_lit: int = 1,
                   secondary_offset_m: float = 0.0, step_voxels: float = 0.5, carve_core: float = 0.5,
                   count_shadow: bool = False, carve_spacing_voxels: float = 1.0):
-    """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden; and the mean
-    signed distance (m, along camera rays, + behind the surface; NaN far from any visible surface)."""
+    """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden; and the count
+    of shadowed secondary segments through each voxel (with `count_shadow`)."""
     dev = data.pixel_dirs.device
     n = int(np.prod(box.shape))
     step = step_voxels * box.voxel
@@ -152,62 +215,7 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     label[lit_count >= max(1, carve_min_lit)] = 3
     label[cam_free > 0] = 2
     label[surface > 0] = 1
-    # signed distance along the camera rays (all pixels) near the visible surfaces
-    sd_sum = torch.zeros(n, dtype=torch.float64, device=dev)
-    sd_cnt = torch.zeros(n, dtype=torch.long, device=dev)
-    vd = data.visible_depth[okx]
-    dirs_all = data.pixel_dirs[okx]
-    _accumulate_signed(box, c.expand_as(dirs_all).contiguous(), dirs_all, vd, 2.0 * box.voxel, step, sd_sum, sd_cnt)
-    sd = torch.where(sd_cnt > 0, sd_sum / sd_cnt.clamp(min=1), torch.full_like(sd_sum, float("nan"))).float()
-    return label.reshape(box.shape), sd.reshape(box.shape), shadow_count.reshape(box.shape)
-
-
-def extrude_unseen(values: torch.Tensor, box: GridBox, camera_to_world, fov_x: float, fov_y: float):
-    """Voxels outside the sensor's view frustum copy the first voxel inside it along the viewing axis."""
-    c2w = torch.as_tensor(np.asarray(camera_to_world), dtype=torch.float32, device=values.device)
-    centres = box.centres().reshape(-1, 3)
-    rel = (centres - c2w[:3, 3]) @ c2w[:3, :3]          # camera coordinates (x right, y up, -z forward)
-    depth = -rel[:, 2]
-    tx, ty = math.tan(0.5 * fov_x), math.tan(0.5 * fov_y)
-    need = torch.maximum(rel[:, 0].abs() / tx, rel[:, 1].abs() / ty)   # depth at which the point is in view
-    shift = (need - depth).clamp(min=0.0)
-    outside = shift > 0
-    if not outside.any():
-        return values
-    fwd = -c2w[:3, 2]
-    src = centres[outside] + (shift[outside] + 0.5 * box.voxel)[:, None] * fwd
-    idx, inside = box.cell_index(src)
-    flat = values.reshape(-1).clone()
-    vals = values.reshape(-1)[(idx[:, 0] * box.shape[1] + idx[:, 1]) * box.shape[2] + idx[:, 2]]
-    tgt = torch.nonzero(outside, as_tuple=False).squeeze(1)
-    flat[tgt[inside]] = vals[inside]
-    return flat.reshape(values.shape)
-
-
-def hidden_occupied(box: GridBox, data: RayData, camera_to_world, fov_rad, fov_axis, thickness_m: float,
-                    shell_voxels: float) -> torch.Tensor:
-    """Which hidden voxels to fill (nx, ny, nz) bool: those at most `thickness_m` behind the visible
-    surface on the sensor ray through them (objects and walls have some thickness), and those within
-    `shell_voxels` of the box faces (the measured extent is bounded by walls, floor and ceiling)."""
-    from ..contract.frames import project_points
-
-    centres = box.centres()
-    pts = centres.reshape(-1, 3).cpu().numpy()
-    col, row, _ = project_points(camera_to_world, data.width, data.height, fov_rad, pts, fov_axis)
-    ci = np.clip(np.floor(np.nan_to_num(col, nan=-1.0)), -1, data.width).astype(np.int64)
-    ri = np.clip(np.floor(np.nan_to_num(row, nan=-1.0)), -1, data.height).astype(np.int64)
-    inview = (ci >= 0) & (ci < data.width) & (ri >= 0) & (ri < data.height)
-    vd = data.visible_depth.cpu().numpy().reshape(data.height, data.width)
-    d = np.full(len(pts), np.nan, np.float32)
-    d[inview] = vd[ri[inview], ci[inview]]
-    rng = np.linalg.norm(pts - data.sensor_origin.cpu().numpy(), axis=1)
-    behind = rng - d
-    fill = np.isfinite(behind) & (behind >= -0.5 * box.voxel) & (behind <= thickness_m)
-    fill = torch.as_tensor(fill.reshape(box.shape), device=centres.device)
-    g = (centres - box.bbox_min) / box.voxel
-    size = torch.tensor(box.shape, device=centres.device, dtype=g.dtype)
-    edge = torch.minimum(g, size - g).amin(-1) < shell_voxels
-    return fill | edge
+    return label.reshape(box.shape), shadow_count.reshape(box.shape)
 
 
 def fov_xy(width: int, height: int, fov_rad: float, fov_axis: str):
@@ -216,28 +224,39 @@ def fov_xy(width: int, height: int, fov_rad: float, fov_axis: str):
     return 2.0 * math.atan(math.tan(0.5 * fov_rad) * width / height), fov_rad
 
 
-def initial_grid(data: RayData, box: GridBox, cfg, camera_to_world, fov_x: float, fov_y: float,
-                 secondary_offset_m: float = 0.0) -> DensityGrid:
-    """The fast mode's starting field (cfg: FastConfig)."""
-    label, sd, shadow_count = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit,
-                                            secondary_offset_m, cfg.step_voxels, cfg.carve_core,
-                                            count_shadow=cfg.fill_min_shadow > 0,
-                                            carve_spacing_voxels=cfg.carve_spacing_voxels)
+def in_view(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_axis: str) -> torch.Tensor:
+    """Voxels (nx, ny, nz) bool whose centre projects into the sensor image (in front of the sensor)."""
+    from ..contract.frames import project_points
+
+    pts = box.centres().reshape(-1, 3).cpu().numpy()
+    col, row, _ = project_points(camera_to_world, data.width, data.height, fov_rad, pts, fov_axis)
+    col, row = np.nan_to_num(col, nan=-1.0), np.nan_to_num(row, nan=-1.0)
+    ok = (col >= 0) & (col < data.width) & (row >= 0) & (row < data.height)
+    return torch.as_tensor(ok.reshape(box.shape), device=data.pixel_dirs.device)
+
+
+def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0.0, view=None):
+    """The fast mode's starting field (cfg: FastConfig) and the voxels known to be free (nx, ny, nz) bool.
+
+    Known free (seen through by the sensor or crossed by a lit secondary ray): empty. Everything else
+    in the sensor's view (`view`, bool (nx, ny, nz)) is occupied (the shadow hull: every shadowed ray
+    stays blocked, every lit ray stays clear); outside the view nothing was measured and nothing is
+    put (empty, but not known free, so no surface is reported against it); the
+    optimisation and the mesh exporter (which reports only surfaces facing known free space) decide
+    the rest. Near visible surfaces a linear ramp in the point-to-plane signed distance puts the
+    surface at the measured depth to a fraction of a voxel (trilinear interpolation keeps a linear
+    ramp linear); behind a visible surface a lit voxel stays free (thin parts keep their thickness).
+    """
+    label, _ = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m,
+                             cfg.step_voxels, cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels)
     free = (label == 2) | (label == 3)
-    if cfg.hidden_thickness_m is not None:   # hidden and uncarved: occupied only near surfaces / walls
-        fov = fov_x if data.width >= data.height else fov_y
-        axis = "x" if data.width >= data.height else "y"
-        fill = hidden_occupied(box, data, camera_to_world, fov, axis, cfg.hidden_thickness_m, cfg.shell_voxels)
-        if cfg.fill_min_shadow > 0:        # ... or where shadowed secondary rays say an occluder may be
-            fill |= shadow_count >= cfg.fill_min_shadow
-        free |= (label == 0) & ~fill
-    raw = torch.where(free, torch.tensor(cfg.raw_free), torch.tensor(cfg.raw_occupied)).float().to(sd.device)
+    dev = data.pixel_dirs.device
+    occupied = ~free if view is None else ~free & view
+    raw = torch.where(occupied, torch.tensor(cfg.raw_occupied, device=dev), torch.tensor(cfg.raw_free, device=dev))
     if cfg.surface_slope > 0:
-        # near visible surfaces a linear ramp in the signed distance puts the rendered surface at the
-        # measured depth to a fraction of a voxel (trilinear interpolation reproduces a linear ramp)
+        sd = surface_signed_distance(data, box, cfg.surface_half_width_voxels).to(dev)
         b = surface_offset(cfg.density_scale, box.voxel, cfg.surface_slope)
         ramp = (cfg.surface_slope * sd / box.voxel + b).clamp(cfg.raw_free, cfg.raw_occupied)
-        near = torch.isfinite(sd) & ((label != 3) | (sd >= 0))   # a seen surface beats carving behind it
+        near = torch.isfinite(sd) & ((label != 3) | (sd <= 0.5 * box.voxel))
         raw = torch.where(near, ramp, raw)
-    raw = extrude_unseen(raw, box, camera_to_world, fov_x, fov_y)
-    return DensityGrid.from_xyz(box, raw.to(data.pixel_dirs.device), cfg.density_scale)
+    return DensityGrid.from_xyz(box, raw.float(), cfg.density_scale), free

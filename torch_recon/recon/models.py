@@ -14,7 +14,7 @@ import torch.nn.functional as F
 from .config import FitConfig
 from .data import RayData
 from .fields import DensityGrid, GridBox
-from .init import fov_xy, initial_grid, scene_bbox
+from .init import in_view, initial_grid, scene_bbox, surface_offset
 from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total_loss
 from .renderer import render_field, render_pruned, secondary_rays
 from .sampler import importance_positions, merged_intervals, ray_box, uniform_intervals
@@ -56,16 +56,23 @@ class FastModel:
         lo, hi = scene_bbox(data, self.fc.bbox_margin_voxels * fine_voxel)
         self.bbox = (lo, hi)
         self.level = 0 if self.fc.coarse_fraction > 0 and self.fc.coarse_resolution < self.fc.resolution else 1
-        self.grid = self._initial(self.fc.coarse_resolution if self.level == 0 else self.fc.resolution)
+        self.grid, self.free = self._initial(self.fc.coarse_resolution if self.level == 0 else self.fc.resolution)
         self.occupancy = None
         self.refresh_occupancy()
         self.make_optimizer()
 
     def _initial(self, res):
         box = GridBox(self.bbox[0], self.bbox[1], res).to(self.device)
-        fx, fy = fov_xy(self.data.width, self.data.height, self.meta["fov_rad"], self.meta["fov_axis"])
-        return initial_grid(self.data, box, self.fc, self.meta["camera_to_world"], fx, fy,
-                            self.offset_for(box.voxel))
+        return initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box))
+
+    def _view(self, box):
+        return in_view(self.data, box, self.meta["camera_to_world"], self.meta["fov_rad"], self.meta["fov_axis"])
+
+    def free_evidence(self) -> np.ndarray:
+        """Voxels (nx, ny, nz) the measurements show empty, on the current grid (for the mesh export)."""
+        if tuple(self.free.shape) != tuple(self.grid.box.shape):
+            self.free = initial_grid(self.data, self.grid.box, self.fc, self.offset, self._view(self.grid.box))[1]
+        return self.free.cpu().numpy()
 
     def offset_for(self, voxel):
         return max(self.cfg.loss.secondary_offset_m, self.fc.secondary_offset_voxels * voxel)
@@ -142,19 +149,36 @@ class FastModel:
         op = 1.0 - torch.exp(-sigma * self.grid.box.voxel)
         return op.cpu().numpy(), self.grid.box.bbox_min.cpu().numpy(), self.grid.box.bbox_max.cpu().numpy()
 
+    def surface_volume(self):
+        """A field for marching cubes (nx, ny, nz) and its level: the raw density clipped to one voxel's
+        signed-distance ramp around the raw value at the surface (where a ray crossing the initial
+        ramp has half its transmittance left: the depth volume rendering puts there).
+
+        The ramp is steep (surface_slope per voxel), so opacity at voxel centres is nearly binary and
+        marching cubes on it snaps the surface to the midpoint between centres (grid-aligned terraces
+        of up to half a voxel). Clipped raw is linear in the signed distance across the surface: the
+        interpolated crossing is the measured surface to a fraction of a voxel."""
+        slope = max(self.fc.surface_slope, 1.0)
+        iso = surface_offset(self.grid.density_scale, self.grid.box.voxel, slope)
+        half = max(min(slope, iso - self.fc.raw_free, self.fc.raw_occupied - iso), 1e-3)   # inside the init's clamp
+        raw = self.grid.raw_xyz().detach().clamp(iso - half, iso + half)
+        return raw.cpu().numpy(), iso
+
     def params_finite(self) -> bool:
         return bool(torch.isfinite(self.grid.raw).all())
 
     def state_dict(self):
         return {"level": self.level, "raw": self.grid.raw.detach().clone(),
                 "bbox_min": self.grid.box.bbox_min.cpu(), "voxel": self.grid.box.voxel,
-                "shape": list(self.grid.box.shape),
+                "shape": list(self.grid.box.shape), "free": self.free.clone(),
                 "occupancy": self.occupancy.clone(), "tau_step": self.tau_step.clone(), "optimizer": self.optimizer.state_dict()}
 
     def load_state_dict(self, st):
         self.level = int(st["level"])
         box = GridBox.exact(st["bbox_min"], st["voxel"], st["shape"]).to(self.device)
         self.grid = DensityGrid(box, self.fc.density_scale, st["raw"].to(self.device))
+        if "free" in st:
+            self.free = st["free"].to(self.device)
         self.occupancy = st["occupancy"].to(self.device)
         self.tau_step = st["tau_step"].to(self.device)
         self.make_optimizer()
