@@ -23,13 +23,14 @@ import numpy as np
 
 from pipeline import blender_scene as bs
 from pipeline import ground_truth, sensor_model, spot_selection, third_bounce, transient_binning
+from pipeline.spot_samples import SpotSampler, windows_to_dense
 from pipeline.cycles_render import EMITTER_OFFSET_M, CyclesRenderer
 from torch_recon.dataset import (DatasetError, DatasetWriter, Manifest, NoiseSpec, Provenance, PulseSpec,
                                  SensorSpec, Spot, TimeGate, TransientLayout, load_dataset, transient_relpath)
 from torch_recon.frames import focal_length_px, project_points
 from torch_recon.units import ps_to_m
 
-SIM_VERSION = "1.0"
+SIM_VERSION = "1.1"   # 1.1: deferred Lambertian shading, adaptive edge sampling
 LASER_POWER_W = 1.0          # expected values are in units of this power; the sensor model rescales
 RGB_POWER_W = 100.0          # point light of the RGB-shadow images (exposure only)
 DEFAULT_ALBEDO = 0.8
@@ -65,7 +66,7 @@ def sensor_spec(cfg, c2w, fov_rad, fov_axis, laser_origin) -> SensorSpec:
     return SensorSpec(width=cfg.width, height=cfg.height, fov_rad=float(fov_rad), fov_axis=fov_axis,
                       camera_to_world=np.asarray(c2w).tolist(), laser_origin=[float(v) for v in laser_origin],
                       pulse=PulseSpec(cfg.pulse_shape, float(cfg.pulse_fwhm_ps)), bin_width_ps=float(cfg.bin_ps),
-                      bin_width_m=float(ps_to_m(cfg.bin_ps)), bins=cfg.bins, start_m=float(cfg.start_m),
+                      bin_width_m=float(cfg.bin_m if cfg.bin_m is not None else ps_to_m(cfg.bin_ps)), bins=cfg.bins, start_m=float(cfg.start_m),
                       time_gate=TimeGate(bool(cfg.time_gate), cfg.gate_window_bins if cfg.time_gate else 0))
 
 
@@ -235,6 +236,7 @@ class RunContext:
     mesh: object
     vpl: object
     timings: dict
+    sampler: object = None      # SpotSampler (shading 'lambertian')
 
 
 def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
@@ -286,11 +288,18 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
         albedos = [bs.object_albedo(bpy.data.objects[n]) or DEFAULT_ALBEDO for n in triangles[3]]
         common = {"version": SIM_VERSION, "sensor": asdict(sensor), "noise": asdict(noise), "seed": cfg.seed,
                   "bounces": cfg.bounces, "footprint": cfg.footprint_radius_m, "window_bound": g_bound,
-                  "geometry": geometry_hash(triangles, geometry, albedos),
+                  "geometry": geometry_hash(triangles, geometry, albedos), "shading": cfg.shading,
+                  "subpixel": cfg.subpixel_samples, "adaptive": cfg.adaptive_subpixel_samples,
+                  "adaptive_spread_bins": cfg.adaptive_spread_bins,
                   "ambient": None if ambient_scale is None else hashlib.sha256(ambient_scale.tobytes()).hexdigest()}
         ctx = RunContext(cfg, scene_label, renderer, sensor, noise, geometry, g_bound, ambient_scale, common,
                          _previous_dataset(out_dir), ground_truth.scene_mesh(triangles[0], triangles[1]),
                          third_bounce.ThirdBounce(scene, depsgraph, cfg) if cfg.bounces == 3 else None, timings)
+        if cfg.shading == "lambertian":
+            t0 = time.perf_counter()
+            ctx.sampler = SpotSampler(sensor, geometry, triangles, albedos, cfg.adaptive_subpixel_samples,
+                                      cfg.adaptive_spread_bins, LASER_POWER_W)
+            _tick(timings, "ray_setup_s", t0)
         while True:   # a second pass only if a spot's signal outgrew the geometric window bound
             try:
                 write_dataset(out_dir, plans, ctx)
@@ -304,7 +313,9 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
     finally:
         renderer.close()
     timings["total_s"] = time.perf_counter() - t_start
-    log("timings: " + ", ".join(f"{k} {v:.2f}" for k, v in timings.items() if k != "spot_s"))
+    log("timings: " + ", ".join(f"{k} {v:.2f}" for k, v in timings.items() if not k.endswith("_pixels")))
+    log(f"adaptive sampling (pixel-spots): {timings.get('edge_pixels', 0)} edge pixels re-sampled, "
+        f"{timings.get('spread_pixels', 0)} smooth wide-spread pixels interpolated")
     return {"spots": len(plans), "timings": timings}
 
 
@@ -323,7 +334,7 @@ def write_dataset(out_dir, plans, ctx: RunContext):
                 what, lay = "unchanged, reused", old.manifest.layout
             else:
                 tr, lay = simulate_spot(p, ctx.renderer, ctx.sensor, ctx.noise, ctx.geometry, ctx.window_bound,
-                                        ctx.ambient_scale, cfg, ctx.vpl, timings)
+                                        ctx.ambient_scale, cfg, ctx.vpl, timings, ctx.sampler)
                 t1 = time.perf_counter()
                 writer.write_transient(p.id, tr, lay.sample_type)
                 _tick(timings, "write_s", t1)
@@ -360,19 +371,42 @@ def _tick(timings, key, t0):
     return time.perf_counter()
 
 
-def simulate_spot(p, renderer, sensor, noise, geometry, g_bound, ambient_scale, cfg, vpl, timings):
-    """Render, bin and apply the sensor model for one spot: (Transient, TransientLayout)."""
+def simulate_spot(p, renderer, sensor, noise, geometry, g_bound, ambient_scale, cfg, vpl, timings, sampler=None):
+    """Render, bin and apply the sensor model for one spot: (Transient, TransientLayout).
+
+    With a SpotSampler (shading 'lambertian'): deferred shading + adaptive edge samples, binned
+    straight into the dataset's windows; the dense (H, W, T) cube is built only for a time gate,
+    a background or third-order light. Else a Cycles render of the spot at the base samples.
+    """
     pos, nrm, alb, valid = geometry
     o, c = np.asarray(sensor.laser_origin), sensor.sensor_origin
     t0 = time.perf_counter()
-    radiance = renderer.render_emitter(p.first_bounce, p.normal, p.albedo * LASER_POWER_W, cfg.footprint_radius_m,
-                                       name=f"spot_{p.id}")
-    t0 = _tick(timings, "render_s", t0)
     try:
-        expected = transient_binning.bin_two_bounce(pos, radiance, valid, p.first_bounce, o, c, sensor,
-                                                    first_bounce_pixel=p.pixel,
-                                                    first_bounce_radiance=p.first_bounce_radiance)
-        t0 = _tick(timings, "binning_s", t0)
+        if sampler is not None:
+            start, window, needed, counts = sampler.expected_windows(p, g_bound)
+            for k, v in counts.items():
+                timings[f"{k}_pixels"] = timings.get(f"{k}_pixels", 0) + v
+            if needed > g_bound:
+                raise WindowTooSmall(p.id, needed)
+            t0 = _tick(timings, "shade_and_bin_s", t0)
+            dense = vpl is not None or sensor.time_gate.enabled or np.any(
+                np.asarray(sensor_model.background_rate(noise, ambient_scale)) > 0)
+            if not dense:
+                h, w = sensor.height, sensor.width
+                tr, layout = sensor_model.apply_sensor_windows(start.reshape(h, w), window.reshape(h, w, -1), sensor,
+                                                               noise, np.random.default_rng([cfg.seed, p.id]),
+                                                               first_bounce_pixel=p.pixel)
+                _tick(timings, "sensor_model_s", t0)
+                return tr, layout
+            expected = windows_to_dense(start, window, sensor.bins).reshape(sensor.height, sensor.width, -1)
+        else:
+            radiance = renderer.render_emitter(p.first_bounce, p.normal, p.albedo * LASER_POWER_W,
+                                               cfg.footprint_radius_m, name=f"spot_{p.id}")
+            t0 = _tick(timings, "render_s", t0)
+            expected = transient_binning.bin_two_bounce(pos, radiance, valid, p.first_bounce, o, c, sensor,
+                                                        first_bounce_pixel=p.pixel,
+                                                        first_bounce_radiance=p.first_bounce_radiance)
+            t0 = _tick(timings, "binning_s", t0)
         if vpl is not None:
             vpl.add(expected, p, renderer, sensor, geometry)
             t0 = _tick(timings, "third_bounce_s", t0)

@@ -307,3 +307,49 @@ def count_out_of_range(sub_positions, sub_radiance, sub_valid, first_bounce, las
     lit = np.asarray(sub_valid, bool) & (rad != 0)
     paths = optical_path(np.asarray(sub_positions)[lit], first_bounce, laser_origin, sensor_centre)
     return int(np.count_nonzero((paths < kernel.start_m) | (paths >= kernel.end_m)))
+
+
+def bin_windows(pixels, paths, amps, n_pixels: int, sensor, window_bins: int, *, out_of_range="raise"):
+    """Samples (pixel, path, amplitude) straight into per-pixel windows: (start (P,), window (P, G), needed).
+
+    The sparse form of bin_two_bounce (no (H, W, T) cube): pixel q keeps bins start[q] ..
+    start[q] + G - 1, start[q] = its first bin with signal (clipped to T - G; 0 without signal),
+    the layout apply_sensor produces. Samples may repeat pixels (bincount sums them) and carry
+    any weight (radiance / samples of that pixel). `needed` is the largest per-pixel extent of
+    signal in bins; when it exceeds G the window is too short and the caller must widen it.
+    Lit samples outside the bin range raise a ValueError naming 'bins' (out_of_range="raise")
+    or are dropped ("drop"); pulse tails past the range are cut.
+    """
+    kernel = PulseKernel(sensor)
+    t, g = kernel.bins, int(window_bins)
+    pixels = np.asarray(pixels, np.int64)
+    paths = np.asarray(paths, np.float64)
+    amps = np.asarray(amps, np.float64)
+    keep = amps > 0
+    outside = keep & ((paths < kernel.start_m) | (paths >= kernel.end_m))
+    if outside.any():
+        if out_of_range == "raise":
+            raise _range_error(paths[outside], kernel, "lit samples")
+        keep &= ~outside
+    pixels, paths, amps = pixels[keep], paths[keep], amps[keep]
+    start = np.zeros(n_pixels, np.int64)
+    window = np.zeros((n_pixels, g), np.float32)
+    if not len(pixels):
+        return start, window, 0
+    first, w = kernel.weights(paths)
+    k_sup = w.shape[1]
+    lo = np.full(n_pixels, t, np.int64)
+    hi = np.full(n_pixels, -1, np.int64)
+    np.minimum.at(lo, pixels, np.maximum(first, 0))
+    np.maximum.at(hi, pixels, np.minimum(first + k_sup - 1, t - 1))
+    has = hi >= 0
+    start[has] = np.minimum(lo[has], max(t - g, 0))
+    needed = int((hi[has] - start[has]).max()) + 1
+    if needed > g:
+        return start, window, needed
+    bins = first[:, None] + np.arange(k_sup)[None, :]
+    ok = (bins >= 0) & (bins < t)
+    idx = (pixels * g - start[pixels])[:, None] + bins
+    acc = np.bincount(idx[ok], weights=(amps[:, None] * w)[ok], minlength=n_pixels * g)
+    window[:] = acc.reshape(n_pixels, g)
+    return start, window, needed
