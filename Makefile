@@ -8,7 +8,7 @@ STAMP  := $(VENV)/.installed-$(shell cat pyproject.toml requirements/*.txt 2>/de
 DEMO_OUT ?= out/demo
 DEMO_RES ?= 64
 
-.PHONY: venv demo test test-all bench addon-zip clean
+.PHONY: venv demo test test-all bench bench-quick addon-zip clean
 
 venv: $(STAMP)
 
@@ -30,8 +30,12 @@ test: venv
 test-all: venv
 	$(PY) -m pytest -q
 
+# every benchmark suite (benchmarks/suites/) -> benchmarks/results/*.json + .png; docs/benchmarks.md
 bench: venv
-	$(PY) benchmarks/run_all.py
+	$(PY) -m benchmarks all
+
+bench-quick: venv
+	$(PY) -m benchmarks all --quick
 
 addon-zip: venv
 	$(PY) addon/build_zip.py --out dist

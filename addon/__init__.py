@@ -11,7 +11,7 @@ import bpy
 
 from . import _project
 
-_project.ensure_importable()  # pipeline.config and torch_recon.units, vendored or from the checkout
+_project.ensure_importable()  # pipeline.config and torch_recon.contract.units, vendored or from the checkout
 
 from . import config_io, draw_spots, jobs, operators, panels, preferences, props  # noqa: E402
 

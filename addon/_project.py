@@ -5,7 +5,7 @@ Two layouts, one rule (documented in docs/addon.md):
   ``pipeline/simulate.py`` import into ``_vendor/`` inside the zip, so the extension is
   self-contained for everything that runs inside Blender;
 - repository checkout (development, tests): the repository root, the parent of ``addon/``.
-That folder is put on ``sys.path`` so ``pipeline.config`` and ``torch_recon.units`` import
+That folder is put on ``sys.path`` so ``pipeline.config`` and ``torch_recon.contract.units`` import
 by their own names, exactly as ``blender -b -P pipeline/simulate.py`` imports them.
 No bpy here: tests and the zip builder use it too.
 """

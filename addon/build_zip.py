@@ -9,7 +9,7 @@ Both build from the same staging folder, so both zips hold the same files:
   (the extension's main module is addon/__init__.py), without this script, caches or tests;
 - _vendor/pipeline, _vendor/torch_recon: the project modules that the add-on and
   pipeline/simulate.py import, found by following their imports (never the torch parts),
-  plus pipeline/data. addon/_project.py puts _vendor on sys.path inside Blender.
+  plus torch_recon/contract/data. addon/_project.py puts _vendor on sys.path inside Blender.
 `--validate` also checks the zip with Blender's extension validator (blender_ext.py from
 a Blender binary or the bpy module) when one is found.
 """
@@ -35,7 +35,7 @@ VENDORED_PACKAGES = ("pipeline", "torch_recon")
 #: scripts run inside Blender whose imports are followed too
 ENTRY_SCRIPTS = ("pipeline/simulate.py",)
 #: package data shipped with the vendored code
-DATA_DIRS = ("pipeline/data",)
+DATA_DIRS = ("torch_recon/contract/data",)
 SKIP_NAMES = {"build_zip.py", "__pycache__", VENDOR}
 SKIP_SUFFIXES = (".pyc", ".pyo", ".blend1", ".zip")
 #: fixed timestamp: the same sources give the same zip bytes

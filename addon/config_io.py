@@ -18,7 +18,7 @@ from . import _project
 
 _project.ensure_importable()
 from pipeline.config import CONFIG_TEXT_NAME, ConfigError, SimulationConfig, SpotConfig  # noqa: E402
-from torch_recon.units import ps_to_m  # noqa: E402
+from torch_recon.contract.units import ps_to_m  # noqa: E402
 
 SOURCE = "Lidar panel"
 

@@ -192,7 +192,7 @@ def visible_depth_points(npz_path: str) -> tuple[np.ndarray, np.ndarray | None]:
     """World points of the closed-form visible depth in a measurements .npz (and their confidence)."""
     from . import _project
     _project.ensure_importable()
-    from torch_recon.frames import pixel_rays
+    from torch_recon.contract.frames import pixel_rays
     from torch_recon.measurements import Measurements
 
     if not os.path.isfile(npz_path):

@@ -128,9 +128,9 @@ def random_candidates(scene, depsgraph, n: int, seed: int, max_tries_per_spot: i
 
 
 def select_diverse(points, normals, k: int, seed: int) -> list[int]:
-    """Indices of k spread-out spots: the simulator's own heuristic (pipeline.spot_selection)."""
+    """Indices of k spread-out spots: the simulator's own heuristic (torch_recon.contract.spots)."""
     import numpy as np
-    from pipeline.spot_selection import select_diverse_spots
+    from torch_recon.contract.spots import select_diverse_spots
 
     idx = select_diverse_spots(np.array([tuple(p) for p in points], np.float64).reshape(-1, 3),
                                None if normals is None else

@@ -28,10 +28,10 @@ import numpy as np  # noqa: E402
 from benchmarks.common import RESULTS_DIR, machine_info, machine_line, peak_rss_mb, timer, write_json  # noqa: E402
 from pipeline.sensor_model import apply_sensor  # noqa: E402
 from pipeline.transient_binning import bin_two_bounce, expected_return_path  # noqa: E402
-from torch_recon.analytic import pulse_bin_weights  # noqa: E402
-from torch_recon.dataset import NoiseSpec, SensorSpec, TimeGate  # noqa: E402
-from torch_recon.frames import camera_ray_directions, look_at_c2w  # noqa: E402
-from torch_recon.units import ps_to_m  # noqa: E402
+from torch_recon.contract.analytic import pulse_bin_weights  # noqa: E402
+from torch_recon.contract.dataset import NoiseSpec, SensorSpec, TimeGate  # noqa: E402
+from torch_recon.contract.frames import camera_ray_directions, look_at_c2w  # noqa: E402
+from torch_recon.contract.units import ps_to_m  # noqa: E402
 
 WINDOWS = (1, 2, 3, 4, 6, 8, 16, 32, 64, 128, 256, 391)
 

@@ -1,8 +1,8 @@
 """Measurements benchmark: preprocessing speed, closed-form visible depth error, BF Lidar on the cave-chair.
 
 Figures (each row says its data source):
-- 'analytic': torch_recon.analytic (trimesh/Embree) transients of the cave-chair geometry
-  (pipeline/scenes.py, 16 paper spots, 391 bins of 128 ps, Gaussian 128 ps pulse), in memory;
+- 'analytic': torch_recon.contract.analytic (trimesh/Embree) transients of the cave-chair geometry
+  (torch_recon/contract/scenes.py, 16 paper spots, 391 bins of 128 ps, Gaussian 128 ps pulse), in memory;
   'analytic+poisson' adds Poisson counts and an ambient floor.
 - 'cycles': datasets written by pipeline/simulate.py (--cycles DIR ...), read from disk (read time
   reported apart); BF Lidar then uses the dataset's own test views and ground-truth mesh.
@@ -30,13 +30,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 
 from benchmarks.common import RESULTS_DIR, machine_info, peak_rss_mb, timer, write_json  # noqa: E402
-from torch_recon.analytic import range_image, render_two_bounce  # noqa: E402
-from torch_recon.dataset import Spot, Transient  # noqa: E402
+from torch_recon.contract.analytic import range_image, render_two_bounce  # noqa: E402
+from torch_recon.contract.dataset import Spot, Transient  # noqa: E402
 from torch_recon.evaluate import depth_metrics, render_mesh_depth, surface_metrics  # noqa: E402
-from torch_recon.frames import paper_test_view_cameras  # noqa: E402
+from torch_recon.contract.frames import paper_test_view_cameras  # noqa: E402
 from torch_recon.measurements import Measurements  # noqa: E402
 from torch_recon.preprocess import PreprocessSettings, process_spot, world_pixel_directions  # noqa: E402
-from torch_recon.synthetic import cave_chair_scene, default_sensor, paper_laser_directions  # noqa: E402
+from torch_recon.contract.synthetic import cave_chair_scene, default_sensor, paper_laser_directions  # noqa: E402
 from torch_recon.visible_depth import fuse_visible_depth  # noqa: E402
 
 CHAIR_CROP = ((-0.5, 2.5, -2.0), (0.5, 3.5, -0.9))   # the chair's region (Chamfer/F-score on the object)
@@ -145,7 +145,7 @@ def run_cycles(path):
     """A Cycles dataset from disk: read time, preprocessing time, visible depth error, BF Lidar on its test views."""
     import trimesh
 
-    from torch_recon.dataset import load_dataset
+    from torch_recon.contract.dataset import load_dataset
     from torch_recon.preprocess import preprocess
     ds = load_dataset(path)
     with timer() as tr:

@@ -4,7 +4,7 @@
     python benchmarks/bench_recon.py --res 128 512         # + fast at 512 x 512 (15 min budget)
     python benchmarks/bench_recon.py --quick               # a smoke run (seconds)
 
-Data: IDEAL measurements of pipeline/scenes.py's cave-chair (the paper's room and a procedural
+Data: IDEAL measurements of torch_recon/contract/scenes.py's cave-chair (the paper's room and a procedural
 chair, 16 of the paper's spots) from the analytic ray caster (torch_recon.recon.synthetic_measurements):
 exact visible depth, exact shadows, exact two-bounce paths at pixel centres. No simulator or
 preprocessing noise is included; that is measured by the measurements benchmark.
@@ -35,9 +35,9 @@ PAPER_L1_M, PAPER_PSNR_DB = 0.0862, 26.58
 
 
 def scene_and_views(res: int, n_dolly: int, n_orbit: int, view_res: int):
-    from pipeline.scenes import cave_chair
-    from torch_recon.analytic import range_image
-    from torch_recon.frames import paper_test_view_cameras
+    from torch_recon.contract.scenes import cave_chair
+    from torch_recon.contract.analytic import range_image
+    from torch_recon.contract.frames import paper_test_view_cameras
     from torch_recon.recon.synthetic_measurements import ideal_measurements
 
     sc = cave_chair()
@@ -66,7 +66,7 @@ def run_single(args) -> dict:
     """One fit in this process (called through a subprocess by main)."""
     import torch
 
-    from torch_recon.analytic import range_image
+    from torch_recon.contract.analytic import range_image
     from torch_recon.evaluate import surface_metrics
     from torch_recon.recon import FitConfig, fit, override
 

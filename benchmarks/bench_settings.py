@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.bench_chain import fit_and_evaluate, run_stage  # noqa: E402
-from torch_recon.dataset import MANIFEST_NAME  # noqa: E402
+from torch_recon.contract.dataset import MANIFEST_NAME  # noqa: E402
 from benchmarks.common import RESULTS_DIR, machine_info, machine_line, write_json  # noqa: E402
 
 DEFAULT_DATASET = RESULTS_DIR / "data" / "chain" / "sim128"

@@ -54,9 +54,9 @@ def run_sim(out, *args):
 
 
 def accuracy(out) -> dict:
-    from pipeline import scenes
+    from torch_recon.contract import scenes
     from torch_recon import analytic
-    from torch_recon.dataset import load_dataset
+    from torch_recon.contract.dataset import load_dataset
 
     ds = load_dataset(out)
     s = ds.sensor

@@ -56,7 +56,7 @@ def preprocess(path, **settings):
     """(dataset, measurements, seconds) with PreprocessSettings(**settings)."""
     import warnings
 
-    from torch_recon.dataset import load_dataset
+    from torch_recon.contract.dataset import load_dataset
     from torch_recon.preprocess import PreprocessSettings, preprocess_dataset
     ds = load_dataset(path)
     t0 = time.perf_counter()
@@ -207,7 +207,7 @@ def integrate_bins(src, dst, factor: int):
     """A new dataset at `dst` whose bins are sums of `factor` adjacent bins of `src` (the paper's temporal
     resolution ablation: 128 ps -> factor x 128 ps). Windows are re-aligned to the coarse bins; the
     pulse width is kept (the laser did not change) and the bin width grows by `factor`."""
-    from torch_recon.dataset import DatasetWriter, Transient, TransientLayout, load_dataset
+    from torch_recon.contract.dataset import DatasetWriter, Transient, TransientLayout, load_dataset
     ds = load_dataset(src)
     man = ds.manifest
     s = man.sensor

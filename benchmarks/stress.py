@@ -57,7 +57,7 @@ class Result:
 
 def _refusal_types():
     from pipeline.config import ConfigError
-    from torch_recon.dataset import DatasetError
+    from torch_recon.contract.dataset import DatasetError
     return (DatasetError, ValueError, ConfigError, FileNotFoundError)
 
 

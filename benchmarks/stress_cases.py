@@ -2,7 +2,7 @@
 
 Simulator cases are named in benchmarks/stress_sim.py (SIM_CASES); here each gets an expectation
 and a post-check run on the dataset it produced. Data cases build small analytic datasets
-(torch_recon.analytic, a 0.6 m box in the paper's room, 16 x 16 pixels) and run preprocessing,
+(torch_recon.contract.analytic, a 0.6 m box in the paper's room, 16 x 16 pixels) and run preprocessing,
 a short fast-mode fit, the mesh export and the evaluation on them.
 """
 
@@ -37,10 +37,10 @@ def synth(path, size=16, photons=None, seed=0, sample_type="float32", pulse_shap
           spots=4, scene="box", only_first_bounce=False, scale_counts=1.0, test_views=2, clip=None):
     """An analytic dataset (noise-free, or Poisson with `photons` for the brightest two-bounce pixel)."""
     from torch_recon import synthetic as sy
-    from torch_recon.analytic import range_image, render_two_bounce
-    from torch_recon.dataset import (DatasetWriter, GroundTruth, GroundTruthViews, Manifest, NoiseSpec, Provenance,
+    from torch_recon.contract.analytic import range_image, render_two_bounce
+    from torch_recon.contract.dataset import (DatasetWriter, GroundTruth, GroundTruthViews, Manifest, NoiseSpec, Provenance,
                                      Spot, Transient, TransientLayout)
-    from torch_recon.frames import paper_test_view_cameras
+    from torch_recon.contract.frames import paper_test_view_cameras
     mesh = {"box": sy.box_room_scene, "empty": lambda: sy.concat(sy.room_mesh())}[scene]()
     sensor = sy.default_sensor(size, size, bins=bins, pulse_shape=pulse_shape)
     dirs = sy.paper_laser_directions()[:spots]
@@ -128,7 +128,7 @@ def case_photon_sweep(work):
 def case_same_seed(work):
     """Same seed: identical Poisson transients, measurements and fitted volume."""
     import torch_recon.recon as rc
-    from torch_recon.dataset import load_dataset
+    from torch_recon.contract.dataset import load_dataset
     from torch_recon.preprocess import preprocess_dataset
     from benchmarks.stress_checks import small_fit_config
     a, b = synth(work / "a", photons=30, seed=5), synth(work / "b", photons=30, seed=5)
@@ -162,7 +162,7 @@ def case_all_shadow(work):
     m = pipeline(synth(work / "ds", only_first_bounce=True), work, fit=False)
     if m["signal_fraction"] > 0.01:
         raise CheckFailed(f"first bounce only, yet {m['signal_fraction']:.1%} of pixels have a two-bounce signal", m)
-    from torch_recon.dataset import load_dataset
+    from torch_recon.contract.dataset import load_dataset
     from torch_recon.preprocess import preprocess_dataset
     m.update(fit_checked(preprocess_dataset(load_dataset(work / "ds")), work / "fit"))   # ok or a clear refusal
     return m
@@ -206,8 +206,8 @@ def case_mesh_nan(work):
 
 def _broken(work, how):
     """A valid small dataset, then broken in one way; returns its path."""
-    from torch_recon.dataset.store import write_transient_file
-    from torch_recon.dataset import Transient
+    from torch_recon.contract.dataset.store import write_transient_file
+    from torch_recon.contract.dataset import Transient
     p = synth(work / "ds", size=8, bins=200, spots=2, test_views=0)
     f = p / "transients" / "spot_0000.exr"
     if how == "nan":
@@ -229,7 +229,7 @@ def _broken(work, how):
 
 def _invalid_case(how):
     def fn(work):
-        from torch_recon.dataset import load_dataset
+        from torch_recon.contract.dataset import load_dataset
         from torch_recon.preprocess import preprocess_dataset
         preprocess_dataset(load_dataset(_broken(work, how)))
     return fn

@@ -39,7 +39,7 @@ def check_dataset(path) -> dict:
     """Every transient finite and >= 0; GT depths without NaN (inf = miss); GT mesh vertices finite."""
     import trimesh
 
-    from torch_recon.dataset import load_dataset
+    from torch_recon.contract.dataset import load_dataset
     ds = load_dataset(path)
     peak = 0.0
     for s in ds.manifest.enabled_spots:
@@ -93,7 +93,7 @@ def shadow_agreement(ds, meas, rel_floor=1e-3) -> float:
     dataset's ground-truth mesh (lit: expected two-bounce energy above rel_floor x the spot's brightest pixel)."""
     import trimesh
 
-    from torch_recon.analytic import render_two_bounce
+    from torch_recon.contract.analytic import render_two_bounce
     mesh = trimesh.load(ds.path(ds.manifest.ground_truth.mesh_file), force="mesh", process=False)
     spots = ds.manifest.enabled_spots
     two = render_two_bounce(mesh, ds.sensor, [s.laser_direction for s in spots], include_first_bounce=False)
@@ -107,7 +107,7 @@ def shadow_agreement(ds, meas, rel_floor=1e-3) -> float:
 
 
 def preprocess_checked(path, **settings):
-    from torch_recon.dataset import load_dataset
+    from torch_recon.contract.dataset import load_dataset
     from torch_recon.preprocess import PreprocessSettings, preprocess_dataset
     ds = load_dataset(path)
     meas = preprocess_dataset(ds, PreprocessSettings(**settings))

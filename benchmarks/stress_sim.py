@@ -83,7 +83,7 @@ def scaled_scene(spec):
     """The example scene of `spec` with its geometry transformed, filtered and extended."""
     import numpy as np
 
-    from pipeline import scenes
+    from torch_recon.contract import scenes
 
     ex = scenes.example(spec["example"])
     s = np.asarray(spec.get("stretch", (1.0, 1.0, 1.0)), float) * float(spec.get("scale", 1.0))
@@ -140,7 +140,7 @@ def run_case(name, out: Path) -> dict:
     except refusals as exc:
         return {"status": "refused", "message": str(exc), "seconds": time.perf_counter() - t0}
     except Exception as exc:  # noqa: BLE001 - anything else is what simulate.py would show as a traceback
-        from torch_recon.dataset import DatasetError
+        from torch_recon.contract.dataset import DatasetError
         if isinstance(exc, DatasetError):
             return {"status": "refused", "message": str(exc), "seconds": time.perf_counter() - t0}
         return {"status": "crash", "message": f"{type(exc).__name__}: {exc}",

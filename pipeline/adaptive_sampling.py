@@ -26,7 +26,7 @@ import numpy as np
 from scipy.ndimage import binary_dilation
 
 from pipeline.spot_shading import SceneRays
-from torch_recon.frames import focal_length_px
+from torch_recon.contract.frames import focal_length_px
 
 _NEIGHBOURS_8 = np.ones((3, 3), bool)
 _NEIGHBOURS_4 = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], bool)

@@ -1,6 +1,6 @@
 """Blender side of the scene: build an example scene, read settings, inspect camera and geometry.
 
-Everything here needs bpy. Geometry of the examples comes from pipeline/scenes.py
+Everything here needs bpy. Geometry of the examples comes from torch_recon/contract/scenes.py
 so the bpy-free tests see the same triangles.
 """
 
@@ -13,7 +13,7 @@ import numpy as np
 from mathutils import Matrix, Vector
 
 from pipeline.config import CONFIG_TEXT_NAME, SimulationConfig, SpotConfig
-from pipeline.scenes import AreaLight, BlenderPrimitive, ExampleScene, MeshPart
+from torch_recon.contract.scenes import AreaLight, BlenderPrimitive, ExampleScene, MeshPart
 
 
 class SceneError(RuntimeError):

@@ -7,7 +7,7 @@ The same settings travel three ways, all through this one class:
 - command-line options, which override either.
 Units: metres, picoseconds (as a person types them), degrees never appear here. The bin
 width is given as `bin_ps` or, exactly in metres of optical path, as `bin_m` (then
-`bin_ps` follows from it; converted in torch_recon.units).
+`bin_ps` follows from it; converted in torch_recon.contract.units).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import json
 import math
 from dataclasses import asdict, dataclass, field, fields
 
-from torch_recon.units import bin_widths_consistent, m_to_ps
+from torch_recon.contract.units import bin_widths_consistent, m_to_ps
 
 CONFIG_SCHEMA_VERSION = "1.0"
 #: Name of the Text datablock in which the add-on keeps the settings inside the .blend

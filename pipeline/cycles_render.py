@@ -4,14 +4,14 @@ Sub-pixel point samples: the image is rendered at s x the sensor resolution with
 one sample per pixel and a 0.01-pixel box filter, so every rendered pixel is a
 point sample at a sub-pixel centre; each s x s block is one sensor pixel's
 S = s^2 samples (sample k = a * s + b: row offset a, column offset b, the order
-of torch_recon.analytic's stratified offsets).
+of torch_recon.contract.analytic's stratified offsets).
 
 Light units (checked numerically, tests/test_sim_physics.py): a Cycles disk area
 light of power P_e watts is a Lambertian emitter of exitance P_e / A, so a
 Lambertian surface of albedo rho_x at distance r returns radiance
 (rho_x / pi) (P_e / pi) cos_l cos_x / r^2. The lit laser spot reflects
 rho_l * P of the laser power P, so an emitter of P_e = rho_l * P reproduces the
-two-bounce radiance (rho_l/pi)(rho_x/pi) P cos_l cos_x / r^2 of torch_recon.analytic.
+two-bounce radiance (rho_l/pi)(rho_x/pi) P cos_l cos_x / r^2 of torch_recon.contract.analytic.
 """
 
 from __future__ import annotations

@@ -32,7 +32,7 @@ import math
 
 import numpy as np
 
-from torch_recon.dataset import NoiseSpec, SensorSpec, Transient, TransientLayout
+from torch_recon.contract.dataset import NoiseSpec, SensorSpec, Transient, TransientLayout
 
 #: pixels per processing chunk (bounds temporaries to ~CHUNK_PIXELS * T * 8 bytes)
 CHUNK_PIXELS = 16384

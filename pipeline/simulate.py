@@ -155,7 +155,7 @@ def apply_options(cfg, args):
     if args.bin_ps is not None:       # the command line's unit wins over a stored bin_m
         cfg.bin_m = None
     if args.bin_m is not None:
-        from torch_recon.units import m_to_ps
+        from torch_recon.contract.units import m_to_ps
 
         if args.bin_m > 0:            # else validate() names bin_m
             cfg.bin_ps = m_to_ps(args.bin_m)
@@ -200,9 +200,10 @@ def main() -> int:
     import bpy
 
     from pipeline import blender_scene as bs
-    from pipeline import scenes, simulator
+    from pipeline import simulator
+    from torch_recon.contract import scenes
     from pipeline.config import ConfigError
-    from torch_recon.dataset import DatasetError
+    from torch_recon.contract.dataset import DatasetError
 
     try:
         if args.example and args.blend:

@@ -22,13 +22,14 @@ import bpy
 import numpy as np
 
 from pipeline import blender_scene as bs
-from pipeline import ground_truth, sensor_model, spot_selection, third_bounce, transient_binning
+from pipeline import sensor_model, third_bounce, transient_binning
 from pipeline.spot_samples import SpotSampler, windows_to_dense
+from torch_recon.contract import ground_truth, spots
 from pipeline.cycles_render import EMITTER_OFFSET_M, CyclesRenderer
-from torch_recon.dataset import (DatasetError, DatasetWriter, Manifest, NoiseSpec, Provenance, PulseSpec,
+from torch_recon.contract.dataset import (DatasetError, DatasetWriter, Manifest, NoiseSpec, Provenance, PulseSpec,
                                  SensorSpec, Spot, TimeGate, TransientLayout, load_dataset, transient_relpath)
-from torch_recon.frames import focal_length_px, project_points
-from torch_recon.units import ps_to_m
+from torch_recon.contract.frames import focal_length_px, project_points
+from torch_recon.contract.units import ps_to_m
 
 SIM_VERSION = "1.1"   # 1.1: deferred Lambertian shading, adaptive edge sampling
 LASER_POWER_W = 1.0          # expected values are in units of this power; the sensor model rescales
@@ -100,7 +101,7 @@ def plan_spots(cfg, scene, depsgraph, sensor, keep_requested: bool) -> list:
         if keep_requested and cfg.random_keep > len(pool):
             pool = [p for p, _ in plans]
     else:
-        dirs = spot_selection.random_candidate_directions(cfg.random_candidates, rng, sensor)
+        dirs = spots.random_candidate_directions(cfg.random_candidates, rng, sensor)
         pool = [SpotPlan(i, f"random_{i}", d) for i, d in enumerate(dirs)]
     hits = []
     for p in pool:
@@ -117,7 +118,7 @@ def plan_spots(cfg, scene, depsgraph, sensor, keep_requested: bool) -> list:
     if keep_requested or not cfg.spots:
         k = cfg.random_keep
         if k < len(hits):
-            idx = spot_selection.select_diverse_spots(np.array([p.first_bounce for p in hits]),
+            idx = spots.select_diverse_spots(np.array([p.first_bounce for p in hits]),
                                                       np.array([p.normal for p in hits]), k, rng)
             hits = [hits[int(i)] for i in idx]   # selection order: the first k are a spread-out subset
         elif k > len(hits):

@@ -9,7 +9,7 @@ one ray per facing sample instead of a Cycles render (measured in docs/simulator
     L2(x) = (rho_l / pi) (rho_x / pi) P cos_l cos_x / r^2 * V(x, l)
 
 with r = |x - l|, cos_l = n_l . (x - l) / r, cos_x = n_x . (l - x) / r: the radiance a
-Cycles disk emitter of power rho_l P at l gives (cycles_render.py) and torch_recon.analytic's.
+Cycles disk emitter of power rho_l P at l gives (cycles_render.py) and torch_recon.contract.analytic's.
 Materials with glossy lobes need the Cycles per-spot render instead (setting shading='cycles').
 No bpy here: numpy + embreex.
 """

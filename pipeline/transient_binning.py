@@ -29,7 +29,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 from scipy.special import erf
 
-from torch_recon.units import fwhm_to_sigma, ps_to_m
+from torch_recon.contract.units import fwhm_to_sigma, ps_to_m
 
 #: the Gaussian pulse is truncated at this many standard deviations (mass outside: 6e-5)
 PULSE_SUPPORT_SIGMAS = 4.0

@@ -13,8 +13,6 @@ import bpy
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
 
 import addon_utils  # noqa: E402
 

@@ -13,9 +13,9 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 def make_synthetic_dataset(root, *, height=6, width=5, bins=40, window_bins=8, spots=3, seed=0,
                            with_ground_truth=True, sample_type="float32"):
     """A small random but valid dataset (windowed transients, optional GT) and its dense cubes."""
-    from torch_recon.dataset import (DatasetWriter, GroundTruth, GroundTruthViews, Manifest, NoiseSpec, Provenance,
+    from torch_recon.contract.dataset import (DatasetWriter, GroundTruth, GroundTruthViews, Manifest, NoiseSpec, Provenance,
                                      SensorSpec, Spot, TimeGate, Transient, TransientLayout)
-    from torch_recon.frames import look_at_c2w
+    from torch_recon.contract.frames import look_at_c2w
 
     rng = np.random.default_rng(seed)
     sensor = SensorSpec(width=width, height=height, bins=bins,

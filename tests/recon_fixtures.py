@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from torch_recon.frames import look_at_c2w
+from torch_recon.contract.frames import look_at_c2w
 
 #: a box on a floor in a three-walled bay, seen from the front and above; its back face
 #: (y = BOX_BACK_Y) is hidden from the sensor

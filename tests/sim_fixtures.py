@@ -25,8 +25,8 @@ import json, sys, bpy
 sys.path.insert(0, {root!r})
 from pipeline.blender_scene import diffuse_material, store_config
 from pipeline.config import SimulationConfig, SpotConfig
-from pipeline.scenes import box
-from torch_recon.frames import look_at_c2w
+from torch_recon.contract.scenes import box
+from torch_recon.contract.frames import look_at_c2w
 from mathutils import Matrix
 opts = json.loads({opts!r})
 bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -65,7 +65,7 @@ def blend_trimesh():
     import numpy as np
     import trimesh
 
-    from pipeline.scenes import box
+    from torch_recon.contract.scenes import box
 
     parts = [box(*p) for p in BLEND_PARTS]
     off = np.cumsum([0] + [len(p.vertices) for p in parts])

@@ -8,7 +8,7 @@ import pytest
 from addon_fixtures import blank, call, expect_error, room  # noqa: F401 (fixtures)
 
 from pipeline.config import CONFIG_TEXT_NAME, SimulationConfig
-from torch_recon.units import ps_to_m
+from torch_recon.contract.units import ps_to_m
 
 
 def _author(scene):

@@ -93,7 +93,7 @@ def test_import_bad_states(blank, tmp_path):
 
 
 def _measurements(path, with_depth=True):
-    from torch_recon.frames import look_at_c2w, pixel_rays
+    from torch_recon.contract.frames import look_at_c2w, pixel_rays
     from torch_recon.measurements import Measurements
     w, h, fov = 6, 4, np.radians(60.0)
     c2w = look_at_c2w([0.0, 0.0, 1.0], [0.0, 3.0, 1.0])

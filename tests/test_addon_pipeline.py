@@ -33,7 +33,7 @@ def _author(scene):
 
 
 def _dataset(path):
-    from torch_recon.dataset import load_dataset
+    from torch_recon.contract.dataset import load_dataset
     ds = load_dataset(path)
     d = json.loads((path / "dataset.json").read_text())
     d.pop("provenance")

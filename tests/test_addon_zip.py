@@ -27,7 +27,7 @@ def test_zip_holds_manifest_and_addon_only(built):
     assert "blender_manifest.toml" in names and "__init__.py" in names
     for must in ("props.py", "panels.py", "preferences.py", "draw_spots.py", "operators/__init__.py",
                  "operators/simulate.py", "_vendor/pipeline/config.py", "_vendor/pipeline/simulate.py",
-                 "_vendor/torch_recon/units.py", "_vendor/torch_recon/measurements.py"):
+                 "_vendor/torch_recon/contract/units.py", "_vendor/torch_recon/measurements.py"):
         assert must in names, must
     for n in names:
         parts = n.split("/")
@@ -82,9 +82,9 @@ import bpy
 bpy.ops.wm.read_factory_settings(use_empty=True)
 import platolidar
 platolidar.register()
-import pipeline.config, torch_recon.units
+import pipeline.config, torch_recon.contract.units
 assert pipeline.config.__file__.startswith({str(ext)!r}), pipeline.config.__file__
-assert torch_recon.units.__file__.startswith({str(ext)!r}), torch_recon.units.__file__
+assert torch_recon.contract.units.__file__.startswith({str(ext)!r}), torch_recon.contract.units.__file__
 from platolidar.config_io import settings_to_config
 cfg = settings_to_config(bpy.context.scene, strict=False)
 assert cfg.bins == 391

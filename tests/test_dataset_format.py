@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from conftest import make_synthetic_dataset
-from torch_recon.dataset import DatasetError, DatasetWriter, Manifest, Transient, load_dataset
-from torch_recon.dataset.platonerf_layout import export_platonerf, import_platonerf
-from torch_recon.frames import blender_to_paper_c2w
+from torch_recon.contract.dataset import DatasetError, DatasetWriter, Manifest, Transient, load_dataset
+from torch_recon.contract.dataset.platonerf_layout import export_platonerf, import_platonerf
+from torch_recon.contract.frames import blender_to_paper_c2w
 
 
 def test_round_trip_bit_exact(synthetic_dataset):

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from conftest import make_synthetic_dataset
-from torch_recon.dataset import DatasetError, load_dataset
-from torch_recon.dataset.exr import read_exr, write_exr
-from torch_recon.dataset.platonerf_layout import export_platonerf, import_platonerf
+from torch_recon.contract.dataset import DatasetError, load_dataset
+from torch_recon.contract.dataset.exr import read_exr, write_exr
+from torch_recon.contract.dataset.platonerf_layout import export_platonerf, import_platonerf
 
 
 def _edit_manifest(root, edit):

@@ -96,7 +96,7 @@ def test_one_sided_rendering_sees_past_a_wall_the_camera_is_inside():
     import trimesh
 
     from torch_recon.evaluate import render_mesh_depth
-    from torch_recon.frames import look_at_c2w
+    from torch_recon.contract.frames import look_at_c2w
 
     slab = trimesh.creation.box((4.0, 0.1, 4.0))          # occupies y in [3.95, 4.05]
     slab.apply_translation([0, 4.0, 0])

@@ -7,7 +7,7 @@ import pytest
 
 from torch_recon import frames
 
-REF = Path(__file__).resolve().parents[1] / "pipeline" / "data" / "platonerf_cave.json"
+from torch_recon.contract.reference import REFERENCE_FILE as REF  # noqa: E402
 
 
 def test_paper_mapping_is_a_rotation():

@@ -7,11 +7,11 @@ import warnings
 import numpy as np
 import pytest
 
-from torch_recon.analytic import range_image, visible
-from torch_recon.dataset import Transient, load_dataset
+from torch_recon.contract.analytic import range_image, visible
+from torch_recon.contract.dataset import Transient, load_dataset
 from torch_recon.measurements import Measurements
 from torch_recon.preprocess import PreprocessError, PreprocessSettings, preprocess, preprocess_dataset
-from torch_recon.synthetic import (box_room_scene, default_sensor, occluder_scene, paper_laser_directions,
+from torch_recon.contract.synthetic import (box_room_scene, default_sensor, occluder_scene, paper_laser_directions,
                                    plane_scene, write_analytic_dataset)
 
 RES = 24
@@ -212,7 +212,7 @@ def test_bad_settings_are_refused(plane_ds):
 def test_first_bounce_next_to_the_projected_pixel():
     """The laser ray projects to col 10.999 (pixel 10) but the return landed in pixel 11, as when the spot
     sits on a pixel border (the paper's targets do at 512^2) and rounding picks the neighbour."""
-    from torch_recon.dataset import Spot
+    from torch_recon.contract.dataset import Spot
     from torch_recon.preprocess import find_first_bounce
     sensor = default_sensor(16, 16, bins=391)
     ld = np.array([2.999 / 8, 1.0, 0.0625])

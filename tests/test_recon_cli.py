@@ -3,14 +3,11 @@
 from __future__ import annotations
 
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))
-from recon_fixtures import box_floor_measurements  # noqa: E402
+from recon_fixtures import box_floor_measurements
 
 
 

@@ -4,15 +4,12 @@ from __future__ import annotations
 
 import os
 import signal
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-sys.path.insert(0, str(Path(__file__).parent))
-from recon_fixtures import BOX_BACK_Y, box_floor_measurements  # noqa: E402
+from recon_fixtures import BOX_BACK_Y, box_floor_measurements
 
 from torch_recon.recon import FitConfig, fit  # noqa: E402
 
@@ -139,7 +136,7 @@ def test_degenerate_measurements_fit_without_nan(meas, case):
     if case == "spot_on_own_surface":
         # l_k exactly at a pixel's surface point: that pixel's secondary ray has zero length
         c = m.camera_to_world[:3, 3]
-        from torch_recon.frames import pixel_rays
+        from torch_recon.contract.frames import pixel_rays
 
         _, dirs = pixel_rays(m.camera_to_world, m.width, m.height, m.fov_rad)
         x = c + dirs[20, 16] * m.visible_depth[20, 16]

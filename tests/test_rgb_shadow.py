@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import make_synthetic_dataset
-from torch_recon.dataset import Transient, load_dataset
+from torch_recon.contract.dataset import Transient, load_dataset
 from torch_recon.measurements import Measurements, SpotMeasurement
 from torch_recon.rgb_shadow import (apply_intensity_shadows, integrated_intensity, intensity_shadow_masks,
                                     mask_agreement, read_rgb_luminance, srgb_to_linear)

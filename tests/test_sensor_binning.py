@@ -5,9 +5,9 @@ import pytest
 
 from pipeline.transient_binning import (FAST_SPREAD_BINS, PulseKernel, bin_two_bounce, count_out_of_range,
                                         expected_return_path, first_bounce_path, optical_path)
-from torch_recon.analytic import pulse_bin_weights
-from torch_recon.dataset import PulseSpec, SensorSpec
-from torch_recon.units import ps_to_m
+from torch_recon.contract.analytic import pulse_bin_weights
+from torch_recon.contract.dataset import PulseSpec, SensorSpec
+from torch_recon.contract.units import ps_to_m
 
 O = np.zeros(3)
 
@@ -69,7 +69,7 @@ def test_pulse_weights_sum_to_one_and_match_reference(shape, fwhm_ps):
     first, w = PulseKernel(s).weights(paths)
     np.testing.assert_allclose(w.sum(axis=1), 1.0, atol=1e-12)
     assert np.all(w >= 0)
-    # independent implementation (torch_recon.analytic, dense erf over all bins)
+    # independent implementation (torch_recon.contract.analytic, dense erf over all bins)
     ref = pulse_bin_weights(paths, s.start_m, s.bin_width_m, s.bins, ps_to_m(fwhm_ps), shape)
     dense = np.zeros_like(ref)
     for j in range(w.shape[1]):
@@ -99,7 +99,7 @@ def test_energy_conserved_and_matches_independent_reference():
     assert cube.dtype == np.float32 and cube.shape == (12, 16, 300)
     expect_total = np.where(valid, rad, 0).sum(axis=0) / 4
     np.testing.assert_allclose(cube.sum(axis=2), expect_total, rtol=1e-5, atol=1e-7)
-    # reference: dense per-sample pulse weights from torch_recon.analytic, averaged over samples
+    # reference: dense per-sample pulse weights from torch_recon.contract.analytic, averaged over samples
     ref = np.zeros(cube.shape)
     paths = optical_path(pos, l, O, O)
     for sub in range(4):

@@ -7,9 +7,9 @@ import pytest
 from scipy import stats
 
 from pipeline.sensor_model import apply_sensor, gate_starts, widen_window
-from torch_recon.analytic import pulse_bin_weights
-from torch_recon.dataset import NoiseSpec, PulseSpec, SensorSpec, TimeGate
-from torch_recon.units import ps_to_m
+from torch_recon.contract.analytic import pulse_bin_weights
+from torch_recon.contract.dataset import NoiseSpec, PulseSpec, SensorSpec, TimeGate
+from torch_recon.contract.units import ps_to_m
 
 
 def make_sensor(w=64, h=64, bins=200, gate=0):

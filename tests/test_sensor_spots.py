@@ -1,13 +1,13 @@
-"""Laser spot choice (pipeline/spot_selection.py): candidate directions in view, diversity heuristic."""
+"""Laser spot choice (torch_recon/contract/spots.py): candidate directions in view, diversity heuristic."""
 
 import math
 
 import numpy as np
 import pytest
 
-from pipeline.spot_selection import coverage_radius, random_candidate_directions, select_diverse_spots
-from torch_recon.dataset import SensorSpec
-from torch_recon.frames import look_at_c2w, project_points
+from torch_recon.contract.spots import coverage_radius, random_candidate_directions, select_diverse_spots
+from torch_recon.contract.dataset import SensorSpec
+from torch_recon.contract.frames import look_at_c2w, project_points
 
 
 def test_candidate_directions_inside_field_of_view_and_seeded():

@@ -10,7 +10,7 @@ import pytest
 
 pytest.importorskip("bpy")
 
-from torch_recon.dataset import load_dataset  # noqa: E402
+from torch_recon.contract.dataset import load_dataset  # noqa: E402
 
 from sim_fixtures import build_blend, simulate  # noqa: E402
 

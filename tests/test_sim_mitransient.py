@@ -15,8 +15,8 @@ import pytest
 pytest.importorskip("bpy")
 mi = pytest.importorskip("mitsuba")
 
-from pipeline import scenes  # noqa: E402
-from torch_recon.dataset import load_dataset  # noqa: E402
+from torch_recon.contract import scenes  # noqa: E402
+from torch_recon.contract.dataset import load_dataset  # noqa: E402
 
 from sim_fixtures import simulate  # noqa: E402
 

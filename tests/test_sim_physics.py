@@ -1,7 +1,7 @@
-"""The Cycles simulator against the independent analytic renderer (trimesh/Embree, torch_recon.analytic).
+"""The Cycles simulator against the independent analytic renderer (trimesh/Embree, torch_recon.contract.analytic).
 
 The simulator runs as a user runs it (`python pipeline/simulate.py --example cave-chair ...`);
-expectations come from the bpy-free geometry of pipeline/scenes.py, ray cast by Embree.
+expectations come from the bpy-free geometry of torch_recon/contract/scenes.py, ray cast by Embree.
 """
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ import pytest
 
 pytest.importorskip("bpy")
 
-from pipeline import scenes  # noqa: E402
+from torch_recon.contract import scenes  # noqa: E402
 from torch_recon import analytic  # noqa: E402
-from torch_recon.dataset import load_dataset  # noqa: E402
-from torch_recon.frames import camera_ray_directions  # noqa: E402
+from torch_recon.contract.dataset import load_dataset  # noqa: E402
+from torch_recon.contract.frames import camera_ray_directions  # noqa: E402
 
 from sim_fixtures import simulate  # noqa: E402
 

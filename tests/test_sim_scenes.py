@@ -1,4 +1,4 @@
-"""The example scenes' bpy-free geometry (pipeline/scenes.py)."""
+"""The example scenes' bpy-free geometry (torch_recon/contract/scenes.py)."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline import scenes
-from torch_recon.frames import paper_to_blender_points
+from torch_recon.contract import scenes
+from torch_recon.contract.frames import paper_to_blender_points
 
-REFERENCE = Path(__file__).resolve().parents[1] / "pipeline" / "data" / "platonerf_cave.json"
+from torch_recon.contract.reference import REFERENCE_FILE as REFERENCE  # noqa: E402
 
 
 def test_paper_targets_match_the_reference():

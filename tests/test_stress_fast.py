@@ -45,7 +45,7 @@ def test_integrate_bins_sums_adjacent_bins(tmp_path):
     """The temporal ablation's bin integration: coarse bin j = sum of fine bins f*j .. f*j+f-1; GT carried over."""
     from benchmarks.recon_harness import integrate_bins
     from benchmarks.stress_cases import synth
-    from torch_recon.dataset import load_dataset
+    from torch_recon.contract.dataset import load_dataset
 
     src = synth(tmp_path / "src", size=8, bins=300, spots=2, test_views=2)
     a, b = load_dataset(src), load_dataset(integrate_bins(src, tmp_path / "dst", 4))

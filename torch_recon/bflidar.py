@@ -184,7 +184,7 @@ def carve(meas, settings: BFLidarSettings | None = None, device="cpu", progress=
     import torch
     from scipy.ndimage import gaussian_filter
 
-    from .frames import pixel_rays
+    from .contract.frames import pixel_rays
     s = settings or BFLidarSettings()
     s.validate()
     t0 = time.perf_counter()

@@ -37,7 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    from .dataset import DatasetError
+    from .contract.dataset import DatasetError
 
     args = build_parser().parse_args(argv)
     try:

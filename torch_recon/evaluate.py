@@ -33,8 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .analytic import range_image
-from .frames import camera_ray_directions
+from .contract.analytic import range_image
+from .contract.frames import camera_ray_directions
 
 PSNR_MSE_FLOOR = 1e-10
 
@@ -163,20 +163,28 @@ def _sample_surface(mesh, n, seed, crop_min, crop_max):
     return pts, face
 
 
-def point_to_mesh_distance(points, mesh, samples, sample_faces, k=6):
+def point_to_mesh_distance(points, mesh, samples, sample_faces, k=6, return_faces=False):
     """Distance from points to a mesh surface: exact point-triangle distance to the faces of the
-    k nearest surface samples (an upper bound that is exact once the samples are dense)."""
+    k nearest surface samples (an upper bound that is exact once the samples are dense).
+    With `return_faces`, also the index of the nearest face per point."""
     from scipy.spatial import cKDTree
     from trimesh.triangles import closest_point
     if len(points) == 0:
-        return np.zeros(0)
+        return (np.zeros(0), np.zeros(0, np.int64)) if return_faces else np.zeros(0)
     k = min(k, len(samples))
     _, nn = cKDTree(samples).query(points, k=k, workers=-1)
     nn = nn.reshape(len(points), k)
-    faces = sample_faces[nn]                                    # (N, k) candidate triangles
-    tris = np.asarray(mesh.triangles)[faces.reshape(-1)]
-    q = np.repeat(points, k, axis=0)
-    d = np.linalg.norm(closest_point(tris, q) - q, axis=1).reshape(len(points), k)
+    faces = np.sort(sample_faces[nn], axis=1)                   # (N, k) candidate triangles
+    first = np.ones_like(faces, bool)                           # each (point, face) pair measured once
+    first[:, 1:] = faces[:, 1:] != faces[:, :-1]
+    rows, cols = np.nonzero(first)
+    tris = np.asarray(mesh.triangles)[faces[rows, cols]]
+    q = points[rows]
+    d = np.full(faces.shape, np.inf)
+    d[rows, cols] = np.linalg.norm(closest_point(tris, q) - q, axis=1)
+    if return_faces:
+        j = d.argmin(axis=1)
+        return d[np.arange(len(points)), j], faces[np.arange(len(points)), j]
     return d.min(axis=1)
 
 

@@ -35,8 +35,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .dataset.transient import Transient
-from .frames import camera_ray_directions, focal_length_px
+from .contract.dataset.transient import Transient
+from .contract.frames import camera_ray_directions, focal_length_px
 from .measurements import Measurements, SpotMeasurement
 
 

@@ -21,7 +21,7 @@ import copy
 
 import numpy as np
 
-from .dataset.transient import Transient
+from .contract.dataset.transient import Transient
 from .measurements import Measurements
 
 # I_k / max_k I below this -> shadow. The lidar's matched-filter default (0.15, the paper's) is a
@@ -40,7 +40,7 @@ def integrated_intensity(transient: Transient) -> np.ndarray:
     non-zero bin (lossless storage, whose sum is exact).
     """
     if not isinstance(transient, Transient):
-        raise TypeError(f"transient: expected a torch_recon.dataset.Transient, got {type(transient).__name__}")
+        raise TypeError(f"transient: expected a torch_recon.contract.dataset.Transient, got {type(transient).__name__}")
     return np.asarray(transient.window, np.float64).sum(axis=2)
 
 

@@ -61,7 +61,7 @@ def fuse_visible_depth(meas, device="cpu", inlier_m: float | None = None, keep_p
     """Fuse the per-spot closed-form ranges of a Measurements into one depth map and confidence."""
     import torch
 
-    from .frames import pixel_rays
+    from .contract.frames import pixel_rays
     dtype = dtype or torch.float64
     _, dirs = pixel_rays(meas.camera_to_world, meas.width, meas.height, meas.fov_rad, meas.fov_axis)
     dirs = torch.as_tensor(dirs, dtype=dtype, device=device)
@@ -92,7 +92,7 @@ def fuse_visible_depth(meas, device="cpu", inlier_m: float | None = None, keep_p
 
 def visible_points(meas, depth=None, min_confidence: float = 0.0) -> np.ndarray:
     """World points (N, 3) of pixels with a finite fused depth (and confidence >= min_confidence)."""
-    from .frames import pixel_rays
+    from .contract.frames import pixel_rays
     depth = meas.visible_depth if depth is None else depth
     if depth is None:
         raise ValueError("measurements carry no visible depth; run preprocess with compute_visible_depth")

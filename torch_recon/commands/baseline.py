@@ -28,7 +28,7 @@ def run(args) -> int:
     import numpy as np
 
     from ..bflidar import BFLidarSettings, carve, grid_search
-    from ..dataset import load_dataset
+    from ..contract.dataset import load_dataset
     from ..evaluate import EvalSettings, depth_metrics, evaluate, render_mesh_depth
     from ..measurements import Measurements
     from ..mesh_export import export_mesh

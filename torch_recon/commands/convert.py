@@ -17,7 +17,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..dataset.platonerf_layout import export_platonerf, import_platonerf
+    from ..contract.dataset.platonerf_layout import export_platonerf, import_platonerf
 
     if args.direction == "from-platonerf":
         ds = import_platonerf(args.src, args.dst, bin_width_ps=args.bin_ps, bin_width_m=args.bin_m,

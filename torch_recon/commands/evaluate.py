@@ -22,7 +22,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..dataset import load_dataset
+    from ..contract.dataset import load_dataset
     from ..evaluate import EvalSettings, evaluate
     from ..mesh_export import load_mesh_world
 

@@ -70,7 +70,7 @@ def run(args) -> int:
     import time
     from pathlib import Path
 
-    from ..dataset import load_dataset
+    from ..contract.dataset import load_dataset
     from ..preprocess import preprocess_dataset
 
     settings = settings_from_args(args)

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..frames import pixel_rays
+from ..contract.frames import pixel_rays
 from ..measurements import Measurements
 from .config import FitConfig
 from .data import build_ray_data
@@ -97,7 +97,7 @@ def load_source(source, progress: bool = True):
     if (path / "measurements.npz").is_file() and not (path / "dataset.json").is_file():
         m = Measurements.load(path / "measurements.npz")
         return m, measurements_hash(m)
-    from ..dataset import load_dataset
+    from ..contract.dataset import load_dataset
     from ..preprocess import preprocess_dataset
 
     ds = load_dataset(path)

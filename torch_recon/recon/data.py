@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..frames import pixel_rays
+from ..contract.frames import pixel_rays
 from ..measurements import Measurements
 
 

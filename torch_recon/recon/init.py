@@ -189,7 +189,7 @@ def hidden_occupied(box: GridBox, data: RayData, camera_to_world, fov_rad, fov_a
     """Which hidden voxels to fill (nx, ny, nz) bool: those at most `thickness_m` behind the visible
     surface on the sensor ray through them (objects and walls have some thickness), and those within
     `shell_voxels` of the box faces (the measured extent is bounded by walls, floor and ceiling)."""
-    from ..frames import project_points
+    from ..contract.frames import project_points
 
     centres = box.centres()
     pts = centres.reshape(-1, 3).cpu().numpy()

@@ -2,7 +2,7 @@
 
 Used by tests and benchmarks to develop and check the reconstructor independently of the
 simulator and of preprocessing noise. Built with the analytic renderer's Embree ray casts
-(torch_recon.analytic): pixel hit points, first-bounce points l_k, exact shadows, and the
+(torch_recon.contract.analytic): pixel hit points, first-bounce points l_k, exact shadows, and the
 two-bounce path |l - o| + |x - l| + |c - x| at pixel centres.
 """
 
@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..analytic import RAY_EPS, first_hits, visible
-from ..frames import pixel_rays
+from ..contract.analytic import RAY_EPS, first_hits, visible
+from ..contract.frames import pixel_rays
 from ..measurements import Measurements, SpotMeasurement
 
 

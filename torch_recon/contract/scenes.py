@@ -2,12 +2,12 @@
 
 Each scene is a list of parts with an albedo: triangle meshes generated here in
 numpy (boxes, a curved wall), so Blender (pipeline/blender_scene.py) and the
-independent trimesh/Embree tests (torch_recon.analytic) see the very same
+independent trimesh/Embree tests (torch_recon.contract.analytic) see the very same
 triangles. One part kind, Blender's built-in monkey, exists only inside Blender;
 scenes that use it have no bpy-free mesh (`has_exact_mesh` is False) and their
 tests use the exported ground-truth mesh instead.
 
-The paper's cave (reference/platonerf_cave.json, y-up) maps to Blender by
+The paper's cave (contract/data/platonerf_cave.json via contract.reference, y-up) maps to Blender by
 (x, y, z) -> (-x, z, y): room x in [-2, 2], depth y in [0, 4], height z in
 [-2, 2], no front wall; the sensor sits at the origin and looks along +Y.
 """
@@ -19,7 +19,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from torch_recon.frames import look_at_c2w, paper_to_blender_points
+from . import reference
+from .frames import look_at_c2w, paper_to_blender_points
 
 WALL_THICKNESS = 0.02
 WALL_ALBEDO = 0.7
@@ -158,40 +159,11 @@ def curved_wall(albedo=WALL_ALBEDO, radius=2.5, centre_y=1.5, segments=48, rows=
 
 
 # -- the paper's reference numbers ------------------------------------------------------
-#: The paper's 24 laser targets (its y-up frame), transcribed from reference/platonerf_cave.json
-PAPER_LASER_TARGETS_24 = (
-    (2.0, 0.03270663335091917, 2.428435808869989),
-    (2.0, -1.067321083188301, 2.7395547428104874),
-    (2.0, -0.13768569748299164, 2.7919796377575024),
-    (2.0, -0.24874408216255461, 2.3162041210549447),
-    (2.0, -1.107812780981493, 3.1002246840010432),
-    (2.0, -1.1756881165048365, 2.8798500952678143),
-    (2.0, 0.44114458328608963, 2.025375065998313),
-    (2.0, -0.1855961611186694, 2.270362503376166),
-    (-2.0, 0.8609494561293327, 2.6743642644435726),
-    (-2.0, -1.016774163621724, 2.9207171218264936),
-    (-2.0, -0.36392444116510214, 2.680929342509382),
-    (-2.0, -0.07492178597127763, 2.6397363949325294),
-    (-2.0, -1.7324398875503986, 2.7180947574636187),
-    (-2.0, 0.9672078484604141, 2.3207291199082873),
-    (-2.0, 0.8670086224243492, 2.9932402231527484),
-    (-2.0, -1.6505391013014215, 3.1772534981699545),
-    (2.870429919101298, -2.524247416295111, 3.692613363265991),
-    (2.7901310985907912, -1.9598969668149948, 3.4842612743377686),
-    (3.0213685780763626, -2.7954718619585037, 3.614347457885742),
-    (1.8562187450006604, -2.7640045545995235, 3.468554735183716),
-    (-2.8527952805161476, -2.4800682589411736, 3.6699275970458984),
-    (-2.700667805969715, -1.4945443198084831, 3.3561697006225586),
-    (-3.016012036241591, -2.556171636097133, 3.462327718734741),
-    (-1.4669269323349, -2.7111953124403954, 3.352975845336914),
-)
-PAPER_USED_16 = (4, 5, 6, 7, 8, 9, 11, 12, 14, 15, 16, 17, 18, 19, 21, 23)
-
-
 def paper_spots():
     """(24 laser targets in Blender's frame, enabled flags of the paper's 16)."""
-    targets = paper_to_blender_points(np.asarray(PAPER_LASER_TARGETS_24, np.float64))
-    return [list(map(float, t)) for t in targets], [i in PAPER_USED_16 for i in range(len(targets))]
+    targets = paper_to_blender_points(reference.laser_targets_24())
+    used = set(reference.used_16_indices())
+    return [list(map(float, t)) for t in targets], [i in used for i in range(len(targets))]
 
 
 def sensor_c2w() -> np.ndarray:

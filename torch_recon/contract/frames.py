@@ -6,7 +6,7 @@ Cameras use the Blender/OpenGL convention: the camera looks down its local -Z,
 columns (right, up, back, origin).
 
 The PlatoNeRF paper's world (Mitsuba) is y-up, the camera looks along +z and
-image-right is -x. ``reference/platonerf_cave.json`` maps it to Blender by
+image-right is -x. ``contract/data/platonerf_cave.json`` maps it to Blender by
 (x, y, z) -> (-x, z, y) (a proper rotation, determinant +1); the released
 ``transforms_train.json`` stores OpenGL camera-to-world matrices in that y-up
 world.
@@ -15,9 +15,9 @@ world.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-
 import numpy as np
+
+from .reference import PaperTestViews
 
 #: Rotation taking paper (y-up) coordinates to Blender (Z-up) coordinates.
 BLENDER_FROM_PAPER = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
@@ -145,32 +145,14 @@ def project_points(c2w, width: int, height: int, fov_rad: float, points, fov_axi
     return col, row, depth
 
 
-@dataclass(frozen=True)
-class PaperTestViews:
-    """The paper's ground-truth test views (dolly + orbit), in the paper's y-up frame.
-
-    Defaults reproduce ``reference/platonerf_cave.json``: 39 dolly views from
-    (0, -1.5, 0) towards the chair at (0, -1.5, 3) in steps of 0.0628 m, and 100
-    orbit views on a circle of radius 0.99 m around it, starting at -pi/2.
-    """
-
-    dolly_count: int = 39
-    dolly_step_m: float = 0.06282151815625667
-    orbit_count: int = 100
-    orbit_radius_m: float = 0.99
-    orbit_start_rad: float = -math.pi / 2
-    height_m: float = -1.5
-    centre_xz: tuple = (0.0, 3.0)
-
-
-def paper_test_view_cameras(traj: PaperTestViews | None = None, dolly_count: int | None = None,
+def paper_test_view_cameras(traj=None, dolly_count: int | None = None,
                       orbit_count: int | None = None) -> np.ndarray:
     """Camera-to-world matrices (N, 4, 4) of the test views, in Blender's frame.
 
     With a different `dolly_count` the dolly spans the same distance as the
     paper's (38 steps of `dolly_step_m`).
     """
-    traj = traj or PaperTestViews()
+    traj = traj or PaperTestViews.from_reference()
     nd = traj.dolly_count if dolly_count is None else int(dolly_count)
     no = traj.orbit_count if orbit_count is None else int(orbit_count)
     if nd < 0 or no < 0:

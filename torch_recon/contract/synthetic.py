@@ -2,90 +2,68 @@
 
 Used by the measurement/evaluation tests and benchmarks: simple trimesh scenes
 (a wall at a known distance, a box in the paper's room, an occluder casting a
-known shadow) rendered by `torch_recon.analytic` and written with DatasetWriter,
+known shadow) rendered by `torch_recon.contract.analytic` and written with DatasetWriter,
 including ground truth (train range image, mesh, test views).
 """
 
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 
-from .analytic import range_image, render_two_bounce
-from .dataset import (DatasetWriter, GroundTruth, GroundTruthViews, Manifest, NoiseSpec, Provenance, SensorSpec, Spot,
-                      TimeGate, Transient, TransientLayout)
+from . import reference
+from .analytic import render_two_bounce
+from .dataset import (DatasetWriter, Manifest, NoiseSpec, Provenance, SensorSpec, Spot, TimeGate, Transient,
+                      TransientLayout)
 from .dataset.schema import PulseSpec
-from .frames import look_at_c2w
+from .frames import look_at_c2w, paper_to_blender_points
+from .ground_truth import render_ground_truth
+from .scenes import OBJECT_ALBEDO, WALL_ALBEDO, MeshPart, box, cave_chair, room_walls
 from .units import ps_to_m
 
 
-def box_mesh(lo, hi):
-    import trimesh
-    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    b = trimesh.creation.box(extents=hi - lo)
-    b.apply_translation((lo + hi) / 2)
-    return b
-
-
-def room_mesh(back_wall=True, thickness=0.02):
-    """The paper's room in Blender's frame: x in [-2, 2], y (depth) in [0, 4], z in [-2, 2], open at y = 0."""
-    t = thickness
-    parts = [box_mesh((-2 - t, 0, -2 - t), (-2, 4 + t, 2 + t)), box_mesh((2, 0, -2 - t), (2 + t, 4 + t, 2 + t)),
-             box_mesh((-2, 0, -2 - t), (2, 4 + t, -2)), box_mesh((-2, 0, 2), (2, 4 + t, 2 + t))]
-    if back_wall:
-        parts.append(box_mesh((-2, 4, -2), (2, 4 + t, 2)))
-    return parts
+def room_mesh(back_wall=True):
+    """The paper's room (scenes.room_walls): x in [-2, 2], y (depth) in [0, 4], z in [-2, 2], open at y = 0."""
+    return room_walls(back_wall=back_wall)
 
 
 def concat(parts):
+    """One trimesh of scene parts (scenes.MeshPart) and/or trimesh meshes."""
     import trimesh
-    return trimesh.util.concatenate(parts)
+
+    meshes = [trimesh.Trimesh(p.vertices, p.faces, process=False) if isinstance(p, MeshPart) else p for p in parts]
+    return trimesh.util.concatenate(meshes)
 
 
 def plane_scene(distance=3.0, half=3.0):
     """A wall facing the sensor at y = distance (plus a side wall for the laser to hit)."""
-    wall = box_mesh((-half, distance, -half), (half, distance + 0.02, half))
-    side = box_mesh((1.5, 0.3, -half), (1.52, distance, half))
+    wall = box("wall", (-half, distance, -half), (half, distance + 0.02, half), WALL_ALBEDO)
+    side = box("side", (1.5, 0.3, -half), (1.52, distance, half), WALL_ALBEDO)
     return concat([wall, side])
 
 
 def box_room_scene():
     """The paper's room with a 0.6 m box on the floor at 3 m depth."""
-    return concat(room_mesh() + [box_mesh((-0.3, 2.7, -2.0), (0.3, 3.3, -1.4))])
+    return concat(room_mesh() + [box("box", (-0.3, 2.7, -2.0), (0.3, 3.3, -1.4), OBJECT_ALBEDO)])
 
 
 def occluder_scene():
     """A back wall at y=4 and a thin vertical slab at y=3 hiding part of it from a spot on the side wall."""
-    return concat(room_mesh() + [box_mesh((-0.4, 3.0, -1.0), (0.4, 3.05, 1.0))])
+    return concat(room_mesh() + [box("slab", (-0.4, 3.0, -1.0), (0.4, 3.05, 1.0), OBJECT_ALBEDO)])
 
 
 def cave_chair_scene():
-    """The paper's room with a chair made of boxes (pipeline/scenes.py when present, else built here)."""
-    try:
-        from pipeline.scenes import cave_chair
-        mesh, _ = cave_chair().trimesh()
-        return mesh, "pipeline.scenes.cave_chair"
-    except Exception:  # noqa: BLE001 - fall back to a local copy of the same recipe
-        s, base = 1.25, np.array([0.0, 3.0, -2.0])
-        parts = [((-0.22, -0.21, 0.40), (0.22, 0.21, 0.44)), ((-0.22, 0.18, 0.44), (0.22, 0.21, 0.80))]
-        for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
-            x, y = sx * 0.20 - 0.015, sy * 0.19 - 0.015
-            parts.append(((x, y, 0.0), (x + 0.03, y + 0.03, 0.40)))
-        boxes = [box_mesh(np.array(lo) * s + base, np.array(hi) * s + base) for lo, hi in parts]
-        return concat(room_mesh() + boxes), "torch_recon.synthetic (local chair of boxes)"
+    """The paper's room with the procedural chair (scenes.cave_chair): (mesh, its name)."""
+    mesh, _ = cave_chair().trimesh()
+    return mesh, "torch_recon.contract.scenes.cave_chair"
 
 
 def paper_laser_directions(origin=(0.0, 0.0, 0.0), used_only=True):
     """Unit laser directions towards the paper's targets (Blender frame)."""
-    from .frames import paper_to_blender_points
-    import json
-    ref = Path(__file__).resolve().parents[1] / "pipeline" / "data" / "platonerf_cave.json"
-    d = json.loads(ref.read_text())
-    t = np.asarray(d["laser_targets_24"], float)
+    t = reference.laser_targets_24()
     if used_only:
-        t = t[d["laser_targets_used_16_indices"]]
+        t = t[list(reference.used_16_indices())]
     v = paper_to_blender_points(t) - np.asarray(origin, float)
     return v / np.linalg.norm(v, axis=1, keepdims=True)
 
@@ -128,22 +106,13 @@ def write_analytic_dataset(out_dir, mesh, sensor: SensorSpec, laser_directions, 
             fb = None if (sp.first_bounce is None or not record_first_bounce) else [float(v) for v in sp.first_bounce]
             spots.append(Spot(id=k, laser_direction=ld.tolist(), transient_file=w.write_transient(k, tr),
                               first_bounce=fb))
-        mesh.export(w.path("ground_truth/mesh.ply"))
-        train = range_image(mesh, sensor.camera_to_world, sensor.width, sensor.height, sensor.fov_rad,
-                            sensor.fov_axis)
-        gt = GroundTruth(train_depth_file=w.write_depth("ground_truth/train_depth.exr", train),
-                         mesh_file="ground_truth/mesh.ply")
-        if test_cameras is not None and len(test_cameras):
-            tw, th = test_size
-            depths = np.stack([range_image(mesh, c, tw, th, sensor.fov_rad, "x") for c in test_cameras])
-            gt.test_views = GroundTruthViews(width=tw, height=th, fov_rad=sensor.fov_rad, fov_axis="x",
-                                             camera_to_world=[np.asarray(c).tolist() for c in test_cameras],
-                                             depth_file=w.write_depth("ground_truth/test_depth.exr", depths))
+        gt = render_ground_truth(w, mesh, sensor, test_cameras=test_cameras, test_size=test_size,
+                                 test_fov_rad=sensor.fov_rad)
         sensor.time_gate = TimeGate(g < sensor.bins, g if g < sensor.bins else 0)
         man = Manifest(sensor=sensor, spots=spots,
                        layout=TransientLayout("windowed" if g < sensor.bins else "dense", g, "float32"),
                        noise=noise, ground_truth=gt,
-                       provenance=Provenance(generator="torch_recon.synthetic (analytic)", generator_version="1",
+                       provenance=Provenance(generator="torch_recon.contract.synthetic (analytic)", generator_version="1",
                                              seed=seed, scene=scene))
         path = w.commit(man)
     return path, parts

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..frames import blender_to_paper_c2w, blender_to_paper_points, paper_to_blender_c2w, paper_to_blender_points
+from ..ground_truth import MESH_FILE, write_mesh, write_test_views, write_train_depth
 from .schema import (DatasetError, GroundTruth, GroundTruthViews, Manifest, NoiseSpec, Provenance, PulseSpec,
                      SensorSpec, Spot, TimeGate, TransientLayout)
 from .store import Dataset, DatasetWriter, _check_array, transient_relpath
@@ -75,7 +76,7 @@ def export_platonerf(dataset: Dataset | str | os.PathLike, out_dir: str | os.Pat
 
 
 TRAIN_DEPTH_NPY = "ground_truth/train_depth.npy"
-MESH_PLY = "ground_truth/mesh.ply"
+MESH_PLY = MESH_FILE
 
 
 def _export_train_gt(ds: Dataset, out: Path) -> None:
@@ -101,7 +102,7 @@ def _import_train_gt(src: Path, wr: DatasetWriter, sensor: SensorSpec) -> dict:
         d = np.load(p, allow_pickle=False)
         if d.shape != (sensor.height, sensor.width):
             raise DatasetError(str(p), "train depth", f"expected shape {(sensor.height, sensor.width)}, got {d.shape}")
-        found["train_depth_file"] = wr.write_depth("ground_truth/train_depth.exr", d)
+        found["train_depth_file"] = write_train_depth(wr, d)
     p = src / MESH_PLY
     if p.is_file():
         import trimesh
@@ -111,8 +112,7 @@ def _import_train_gt(src: Path, wr: DatasetWriter, sensor: SensorSpec) -> dict:
         except Exception as exc:
             raise DatasetError(str(p), "ground-truth mesh", f"not a readable mesh ({exc})") from None
         mesh.vertices = paper_to_blender_points(mesh.vertices)
-        mesh.export(wr.path("ground_truth/mesh.ply"))
-        found["mesh_file"] = "ground_truth/mesh.ply"
+        found["mesh_file"] = write_mesh(wr, mesh)
     return found
 
 
@@ -247,10 +247,7 @@ def _import_test_views(src: Path, wr: DatasetWriter, sensor: SensorSpec) -> Grou
     if not cams:
         return GroundTruth()
     angle = doc.get("camera_angle_x") or sensor.fov_rad
-    rel = wr.write_depth("ground_truth/test_depth.exr", np.stack(depths))
-    return GroundTruth(test_views=GroundTruthViews(width=depths[0].shape[1], height=depths[0].shape[0],
-                                                   fov_rad=float(angle), fov_axis="x", camera_to_world=cams,
-                                                   depth_file=rel))
+    return GroundTruth(test_views=write_test_views(wr, cams, np.stack(depths), float(angle)))
 
 
 __all__ = ["export_platonerf", "import_platonerf", "transient_relpath"]

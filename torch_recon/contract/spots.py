@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from torch_recon.frames import focal_length_px
+from .frames import focal_length_px
 
 #: weight of the normal term relative to the scene extent (see the module docstring)
 NORMAL_WEIGHT = 0.5

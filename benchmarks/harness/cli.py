@@ -1,0 +1,115 @@
+"""`python -m benchmarks list | run NAME [--quick] [--set k=v ...] | all [--quick] | readme`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+import traceback
+from pathlib import Path
+
+from benchmarks.harness import report
+from benchmarks.harness.context import REPO_ROOT, RESULTS_DIR, Context
+from benchmarks.harness.suite import SettingsError, all_suites
+
+
+def run_suite(suite, quick: bool, overrides=(), results_dir: Path = RESULTS_DIR, data_dir: Path | None = None,
+              log=None) -> Path:
+    """Run one suite, check its rows, write results/<name>.json and .png; the JSON's path."""
+    log = log or (lambda msg: print(msg, flush=True))
+    settings = suite.settings(quick, overrides)
+    machine = report.machine_info()
+    log(f"== {suite.name} ({'quick' if quick else 'full'}): {suite.description.splitlines()[0]}")
+    log(f"machine: {report.machine_line(machine)}")
+    ctx = Context(suite.name, quick, **({"data_dir": data_dir} if data_dir else {}), log=log)
+    with ctx.timed() as total:
+        rows = report.check_rows(suite.run(settings, ctx), suite.name)
+    machine["loadavg_1min_end"] = round(os.getloadavg()[0], 2)
+    command = " ".join(["python -m benchmarks run", suite.name, *(["--quick"] if quick else []),
+                        *(f"--set {o}" for o in overrides)])
+    doc = report.results_document(suite, settings, rows, quick, machine, command, REPO_ROOT)
+    doc["suite"]["total_wall_s"] = round(total.wall_s, 2)
+    path = report.write_json(Path(results_dir) / f"{suite.name}.json", doc)
+    png = path.with_suffix(".png")
+    if suite.plot is not None:
+        suite.plot(rows, settings, png)
+    else:
+        report.plot_rows(rows, png, title=f"{suite.name}: {report.machine_line(machine)}")
+    log(render(suite, doc))
+    log(f"({total.wall_s:.0f} s) wrote {path} and {png}")
+    return path
+
+
+def render(suite, results: dict) -> str:
+    """A suite's table (its own renderer or the default) and the provenance line."""
+    table = suite.readme(results) if suite is not None and suite.readme is not None else report.default_table(results)
+    return f"{table}\n\n{report.provenance(results)}"
+
+
+def readme(path: Path = REPO_ROOT / "README.md", results_dir: Path = RESULTS_DIR, suites=None) -> list[str]:
+    """Regenerate every marked table of README from the results JSONs; the names rendered."""
+    suites = all_suites() if suites is None else suites
+
+    def load(name):
+        f = Path(results_dir) / f"{name}.json"
+        return json.loads(f.read_text()) if f.is_file() else None
+    text = Path(path).read_text()
+    new, done = report.render_readme(text, load, lambda name, res: render(suites.get(name), res))
+    if new != text:
+        tmp = Path(path).with_name(Path(path).name + ".tmp")
+        tmp.write_text(new)
+        os.replace(tmp, path)
+    return done
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks", description="benchmark suites (benchmarks/suites/)")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    sub.add_parser("list", help="the suites and what each measures")
+    r = sub.add_parser("run", help="run one suite -> benchmarks/results/NAME.json and .png")
+    r.add_argument("name")
+    r.add_argument("--quick", action="store_true", help="the suite's quick settings (minutes)")
+    r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override one setting")
+    a = sub.add_parser("all", help="run every suite in turn (one failing does not stop the others)")
+    a.add_argument("--quick", action="store_true")
+    a.add_argument("--skip", nargs="*", default=[], metavar="NAME")
+    sub.add_parser("readme", help="regenerate README's tables from benchmarks/results/*.json")
+    args = ap.parse_args(argv)
+    suites = all_suites()
+    if args.cmd == "list":
+        width = max(map(len, suites), default=0)
+        for name, s in suites.items():
+            print(f"{name:{width}s}  {s.description.splitlines()[0]}")
+        return 0
+    if args.cmd == "readme":
+        done = readme(suites=suites)
+        print(f"README tables regenerated: {', '.join(done) or 'none'}")
+        return 0
+    if args.cmd == "run":
+        if args.name not in suites:
+            print(f"error: no suite {args.name!r}; choose one of {', '.join(suites)}", file=sys.stderr)
+            return 2
+        try:
+            suites[args.name].settings(args.quick, args.set)
+        except SettingsError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        run_suite(suites[args.name], args.quick, args.set)
+        return 0
+    status = []
+    for name, s in suites.items():
+        if name in args.skip:
+            continue
+        t0 = time.perf_counter()
+        try:
+            run_suite(s, args.quick)
+            status.append((name, "ok", time.perf_counter() - t0))
+        except Exception:       # noqa: BLE001 - report and go on with the next suite
+            traceback.print_exc()
+            status.append((name, "FAILED", time.perf_counter() - t0))
+    print("\n== summary")
+    for name, st, sec in status:
+        print(f"  {name:28s} {st:8s} {sec:7.1f} s")
+    return 0 if all(st == "ok" for _, st, _ in status) else 1

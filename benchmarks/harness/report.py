@@ -1,0 +1,232 @@
+"""Where a number was measured, what a result row must hold, and how results become files and README tables.
+
+results/<name>.json = {"machine": machine_info(), "suite": {name, description, quick, command, measured},
+                       "settings": the settings dataclass as a dict, "rows": [row, ...]}
+A row starts with ROW_KEYS (method, scene, wall_s, cpu_s, peak_rss_mb); every other field is the suite's
+(error fields, levels, counts). README tables sit between `<!-- bench:NAME -->` and `<!-- /bench:NAME -->`
+and are rebuilt from results/NAME.json by `python -m benchmarks readme`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import json
+import math
+import os
+import platform
+import re
+import subprocess
+from pathlib import Path
+
+ROW_KEYS = ("method", "scene", "wall_s", "cpu_s", "peak_rss_mb")
+TIME_KEYS = ROW_KEYS[2:]
+
+
+class RowError(ValueError):
+    """A suite returned a row that does not follow the row schema."""
+
+
+def machine_info() -> dict:
+    """CPU model, usable cores, RAM, GPU (if torch sees one), library versions, 1-minute load average."""
+    import numpy as np
+    info = {"cpu": _cpu_model(), "cores": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+            else os.cpu_count(), "ram_gb": _ram_gb(), "gpu": None, "python": platform.python_version(),
+            "numpy": np.__version__, "torch": None, "platform": platform.platform(),
+            "loadavg_1min": round(os.getloadavg()[0], 2) if hasattr(os, "getloadavg") else None}
+    try:
+        import torch
+        info["torch"] = torch.__version__
+        if torch.cuda.is_available():
+            info["gpu"] = torch.cuda.get_device_name(0)
+    except ImportError:
+        pass
+    return info
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+def _ram_gb():
+    try:
+        return round(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2 ** 30, 1)
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def machine_line(info: dict) -> str:
+    """One line: what every run prints and every README table names."""
+    parts = [info.get("cpu") or "unknown CPU", f"{info.get('cores')} cores"]
+    if info.get("ram_gb"):
+        parts.append(f"{info['ram_gb']:g} GB RAM")
+    parts.append(f"GPU {info['gpu']}" if info.get("gpu") else "no GPU")
+    parts.append(f"torch {info.get('torch')}, numpy {info.get('numpy')}")
+    load = info.get("loadavg_1min")
+    parts.append(f"load average {load:.2f}" if isinstance(load, (int, float)) else "load average unknown")
+    return ", ".join(parts)
+
+
+def check_rows(rows, suite: str) -> list[dict]:
+    """The rows, or RowError naming the suite, row and field that break the schema."""
+    if not isinstance(rows, list) or not rows:
+        raise RowError(f"suite {suite}: run() must return a non-empty list of row dicts, got {type(rows).__name__}")
+    for i, row in enumerate(rows):
+        if not isinstance(row, dict):
+            raise RowError(f"suite {suite}, row {i}: expected a dict, got {type(row).__name__}")
+        missing = [k for k in ROW_KEYS if k not in row]
+        if missing:
+            raise RowError(f"suite {suite}, row {i}: missing {', '.join(missing)} (every row needs {', '.join(ROW_KEYS)})")
+        for k in ("method", "scene"):
+            if not isinstance(row[k], str):
+                raise RowError(f"suite {suite}, row {i}: {k} must be a string, got {row[k]!r}")
+        for k in TIME_KEYS:
+            v = row[k]
+            if v is not None and (not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v) or v < 0):
+                raise RowError(f"suite {suite}, row {i}: {k} must be a finite number >= 0 or null, got {v!r}")
+        try:
+            json.dumps(row, allow_nan=False, default=_jsonable)
+        except (TypeError, ValueError) as exc:
+            raise RowError(f"suite {suite}, row {i}: not writable as JSON ({exc}); use null for a missing number") from None
+    return rows
+
+
+def _jsonable(o):
+    if hasattr(o, "tolist"):        # numpy scalars and arrays
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"cannot write {type(o).__name__} as JSON")
+
+
+def error_fields(rows) -> list[str]:
+    """The numeric fields after ROW_KEYS, in first-seen order: what a table or plot shows by default."""
+    out = []
+    for r in rows:
+        for k, v in r.items():
+            if k not in ROW_KEYS and k not in out and isinstance(v, (int, float)) and not isinstance(v, bool):
+                out.append(k)
+    return out
+
+
+def git_commit(root: Path) -> str | None:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True,
+                              timeout=10).stdout.strip() or None
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def results_document(suite, settings, rows, quick: bool, machine: dict, command: str, root: Path) -> dict:
+    measured = {"date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+                "commit": git_commit(root), "by": "python -m benchmarks"}
+    return {"machine": machine,
+            "suite": {"name": suite.name, "description": suite.description, "quick": quick, "command": command,
+                      "measured": measured},
+            "settings": dataclasses.asdict(settings), "rows": rows}
+
+
+def write_json(path: Path, obj) -> Path:
+    """Indented JSON, written atomically (temp file + rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=1, allow_nan=False, default=_jsonable) + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+def plot_rows(rows, path: Path, title: str = "", y: str | None = None, x: str = "wall_s", kind: str = "scatter",
+              label: str = "method") -> Path:
+    """The one plot: each row's error `y` (default its first error field) against time `x` (a scatter, one
+    colour per `label` value), or as bars per row (kind='bar')."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    y = y or (error_fields(rows) or [x])[0]
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    if kind == "bar":
+        names = [f"{r.get(label)}\n{r.get('scene', '')}" for r in rows]
+        ax.bar(range(len(rows)), [_num(r.get(y)) for r in rows])
+        ax.set_xticks(range(len(rows)), names, fontsize=7, rotation=30, ha="right")
+    else:
+        for name in dict.fromkeys(str(r.get(label)) for r in rows):
+            rs = [r for r in rows if str(r.get(label)) == name]
+            ax.scatter([_num(r.get(x)) for r in rs], [_num(r.get(y)) for r in rs], label=name)
+        ax.set_xlabel(x)
+        if len({str(r.get(label)) for r in rows}) <= 12:
+            ax.legend(fontsize=7)
+    ax.set_ylabel(y)
+    ax.set_title(title, fontsize=9)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _num(v):
+    return float("nan") if v is None else v
+
+
+# -- README tables ------------------------------------------------------------------------------
+
+def fmt(v) -> str:
+    """A table cell: floats with 3-4 significant digits, None as '-'."""
+    if v is None:
+        return "-"
+    if isinstance(v, bool) or not isinstance(v, float):
+        return str(v)
+    if not math.isfinite(v):
+        return str(v)
+    a = abs(v)
+    return f"{v:.4f}" if a < 1 else f"{v:.2f}" if a < 100 else f"{v:.0f}"
+
+
+def markdown_table(rows, columns) -> str:
+    """`columns`: [(field, header), ...]."""
+    lines = ["| " + " | ".join(h for _, h in columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(fmt(r.get(k)) for k, _ in columns) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def default_table(results: dict) -> str:
+    rows = results["rows"]
+    cols = [(k, k) for k in ROW_KEYS] + [(k, k) for k in error_fields(rows)[:6]]
+    return markdown_table(rows, cols)
+
+
+def provenance(results: dict) -> str:
+    """The line under every README table: command, machine, load, when and by whom it was measured."""
+    s, m = results["suite"], results["machine"]
+    meas = s.get("measured", {})
+    when = meas.get("date", "unknown date")
+    by = meas.get("by", "")
+    stale = "" if by == "python -m benchmarks" else f" ({by})"
+    commit = f", commit {meas['commit']}" if meas.get("commit") else ""
+    return f"<sub>`{s.get('command')}`{' (quick)' if s.get('quick') else ''}; {machine_line(m)}; {when}{commit}{stale}</sub>"
+
+
+MARKER = re.compile(r"(<!-- bench:(?P<name>[\w-]+) -->\n)(?P<body>.*?)(<!-- /bench:(?P=name) -->)", re.S)
+
+
+def render_readme(text: str, load_results, render) -> tuple[str, list[str]]:
+    """`text` with every marked block replaced by render(name, load_results(name)); also the names done.
+    load_results(name) -> dict or None (no JSON: the block is left as it is)."""
+    done = []
+
+    def sub(m):
+        res = load_results(m["name"])
+        if res is None:
+            return m.group(0)
+        done.append(m["name"])
+        return f"{m.group(1)}{render(m['name'], res).rstrip()}\n{m.group(4)}"
+    return MARKER.sub(sub, text), done

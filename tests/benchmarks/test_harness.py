@@ -1,0 +1,128 @@
+"""The benchmark harness itself: a tiny fake suite run in quick mode, the results schema, --set typing,
+run_cli timing of a real subprocess, the dataset cache's validation, and README marker rendering."""
+
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import dataclass
+
+import pytest
+
+from benchmarks.harness import Suite, report
+from benchmarks.harness.cli import readme, run_suite
+from benchmarks.harness.context import Context, _cache_problem, run_cli, simulate_args
+from benchmarks.harness.suite import SettingsError, all_suites
+
+
+@dataclass(frozen=True)
+class FakeSettings:
+    n: int = 3
+    scale: float = 1.0
+    label: str = "fake"
+    levels: tuple[int, ...] = (1, 2)
+    budget_s: float | None = None
+
+
+def fake_run(settings, ctx):
+    with ctx.timed() as t:
+        total = sum(range(settings.n * 1000))
+    ctx.log(f"fake: {total}")
+    return [{"method": settings.label, "scene": f"level{lv}", **t.times(), "depth_l1_m": 0.1 * lv * settings.scale,
+             "n": settings.n} for lv in settings.levels]
+
+
+FAKE = Suite("fake", "a fake suite for the harness tests", quick=FakeSettings(n=2), full=FakeSettings(), run=fake_run,
+             readme=lambda res: report.markdown_table(res["rows"], [("scene", "scene"), ("depth_l1_m", "L1 m")]))
+
+
+def test_quick_run_writes_schema_json_and_png(tmp_path):
+    path = run_suite(FAKE, quick=True, overrides=["scale=2", "levels=[1,3]"], results_dir=tmp_path,
+                     data_dir=tmp_path / "data", log=lambda m: None)
+    doc = json.loads(path.read_text())
+    assert set(doc) == {"machine", "suite", "settings", "rows"}
+    assert doc["suite"]["name"] == "fake" and doc["suite"]["quick"] is True
+    assert doc["settings"] == {"n": 2, "scale": 2.0, "label": "fake", "levels": [1, 3], "budget_s": None}
+    assert [r["scene"] for r in doc["rows"]] == ["level1", "level3"]
+    assert doc["rows"][1]["depth_l1_m"] == pytest.approx(0.6)
+    for r in doc["rows"]:
+        assert list(r)[:5] == list(report.ROW_KEYS)
+        assert r["wall_s"] >= 0 and r["cpu_s"] >= 0 and r["peak_rss_mb"] > 10
+    for key in ("cpu", "cores", "ram_gb", "numpy", "torch", "loadavg_1min"):
+        assert key in doc["machine"]
+    assert path.with_suffix(".png").stat().st_size > 1000
+
+
+@pytest.mark.parametrize("override, message", [("nope=1", "KEY one of"), ("n=1.5", "expected int"),
+                                               ("levels=[1,\"a\"]", "expected int"), ("n", "KEY=VALUE")])
+def test_set_refuses_unknown_keys_and_wrong_types(override, message):
+    with pytest.raises(SettingsError, match=message):
+        FAKE.settings(True, [override])
+
+
+def test_set_types_values_by_field():
+    s = FAKE.settings(False, ["scale=3", "label=x", "budget_s=null", "levels=4"])
+    assert s == FakeSettings(n=3, scale=3.0, label="x", levels=(4,), budget_s=None)
+    assert FAKE.settings(False, ["budget_s=5"]).budget_s == 5.0
+
+
+@pytest.mark.parametrize("bad, field", [({"scene": "x", "wall_s": 1, "cpu_s": 1, "peak_rss_mb": 1}, "method"),
+                                        ({"method": "m", "scene": "s", "wall_s": -1, "cpu_s": 1, "peak_rss_mb": 1}, "wall_s"),
+                                        ({"method": "m", "scene": "s", "wall_s": 1, "cpu_s": 1, "peak_rss_mb": 1,
+                                          "depth_l1_m": float("nan")}, "JSON")])
+def test_row_schema_names_the_broken_field(bad, field):
+    with pytest.raises(report.RowError, match=field):
+        report.check_rows([bad], "fake")
+
+
+def test_readme_markers_rendered_from_results(tmp_path):
+    run_suite(FAKE, quick=True, results_dir=tmp_path, data_dir=tmp_path / "data", log=lambda m: None)
+    md = tmp_path / "README.md"
+    md.write_text("intro\n<!-- bench:fake -->\nold table\n<!-- /bench:fake -->\n"
+                  "<!-- bench:missing -->\nkept\n<!-- /bench:missing -->\nend\n")
+    assert readme(md, tmp_path, suites={"fake": FAKE}) == ["fake"]
+    text = md.read_text()
+    assert "old table" not in text and "| scene | L1 m |" in text and "| level1 | 0.1000 |" in text
+    assert "python -m benchmarks run fake --quick" in text and "kept" in text and text.endswith("end\n")
+    once = text
+    readme(md, tmp_path, suites={"fake": FAKE})
+    assert md.read_text() == once          # idempotent
+
+
+def test_run_cli_times_a_real_subprocess(tmp_path):
+    code = "import time; x = bytearray(200 * 2**20); t = time.process_time()\nwhile time.process_time() - t < 0.3: pass"
+    r = run_cli(["python", "-c", code])
+    assert r.returncode == 0 and r.wall_s >= 0.3 and r.cpu_s >= 0.25 and r.peak_rss_mb > 200
+    bad = run_cli(["python", "-c", "import sys; print('boom', file=sys.stderr); sys.exit(3)"], check=False)
+    assert bad.returncode == 3 and "boom" in bad.stderr
+    with pytest.raises(TimeoutError):
+        run_cli(["python", "-c", "import time; time.sleep(30)"], timeout=0.5)
+
+
+def test_dataset_cache_revalidates(tmp_path):
+    args = simulate_args("cave-chair", 8, 4, {"poisson": True, "photons": 100, "no_gt": False})
+    assert args == ["--example", "cave-chair", "--resolution", "8", "--spots", "4", "--photons", "100", "--poisson"]
+    out = tmp_path / "ds"
+    assert _cache_problem(out, args) == "not cached"
+    out.mkdir()
+    (out / "t.exr").write_bytes(b"12345")
+    (out / "bench_cache.json").write_text(json.dumps({"simulate_args": args, "files": {"t.exr": 5}}))
+    assert "invalid" in _cache_problem(out, args)           # no manifest: not a dataset
+    assert _cache_problem(out, args[:-1]) == "cached with other settings"
+    (out / "t.exr").write_bytes(b"12")                       # truncated
+    assert _cache_problem(out, args) == "cached files changed or missing"
+
+
+def test_every_suite_declares_dataclass_settings():
+    suites = all_suites()
+    for name, s in suites.items():
+        assert s.name == name and s.description
+        assert type(s.quick) is type(s.full)
+        s.settings(True)       # the dataclass check
+
+
+def test_cli_list_and_bad_set(capsys):
+    from benchmarks.harness.cli import main
+    assert main(["list"]) == 0
+    assert main(["run", "no-such-suite"]) == 2
+    assert "no suite" in capsys.readouterr().err
