@@ -20,6 +20,7 @@ from dataclasses import asdict, dataclass
 
 import bpy
 import numpy as np
+from scipy.ndimage import maximum_filter, minimum_filter
 
 from pipeline import blender_scene as bs
 from pipeline import sensor_model, third_bounce, transient_binning
@@ -156,9 +157,10 @@ def first_bounce_pixel(p: SpotPlan, sensor, scene, depsgraph, geometry):
     p.first_bounce_radiance = (p.albedo / math.pi) * LASER_POWER_W / a_pix
 
 
-def window_bins_bound(plans, sensor, geometry, footprint_m: float) -> int:
+def window_bins_bound(plans, sensor, geometry, footprint_m: float, neighbourhood: bool = False) -> int:
     """A window length holding every non-zero bin of every spot (one layout for the dataset).
 
+    neighbourhood: bound each pixel's paths over its 3 x 3 neighbours (adaptive sampling).
     Also checks, before any rendering, that every path that could be lit (the sample faces l
     and l faces the sample) fits the bin range. float32 (+2 bins of margin): it is a bound.
     """
@@ -185,6 +187,8 @@ def window_bins_bound(plans, sensor, geometry, footprint_m: float) -> int:
                 f"(--bins) or the bin width (--bin-ps)")
         hi = np.where(facing, paths, -np.inf).max(axis=0)
         lo = np.where(facing, paths, np.inf).min(axis=0)
+        if neighbourhood:           # edge pixels are sampled again: their samples may see what a neighbour sees
+            hi, lo = maximum_filter(hi, size=3), minimum_filter(lo, size=3)
         if p.pixel is not None:     # the first-bounce return shares its pixel with two-bounce samples
             p1 = transient_binning.first_bounce_path(p.first_bounce, sensor.laser_origin, sensor.sensor_origin)
             hi[p.pixel] = max(hi[p.pixel], p1)
@@ -276,7 +280,8 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
         for p in plans:
             first_bounce_pixel(p, sensor, scene, depsgraph, geometry)
         t0 = time.perf_counter()
-        g_bound = window_bins_bound(plans, sensor, geometry, cfg.footprint_radius_m)
+        g_bound = window_bins_bound(plans, sensor, geometry, cfg.footprint_radius_m,
+                                    neighbourhood=cfg.shading == "lambertian" and cfg.adaptive_subpixel_samples > 0)
         if cfg.bounces == 3:      # third-order light spreads over long paths: keep every bin
             g_bound = sensor.bins
         _tick(timings, "window_bound_s", t0)
@@ -386,10 +391,11 @@ def simulate_spot(p, renderer, sensor, noise, geometry, g_bound, ambient_scale, 
         if sampler is not None:
             start, window, needed, counts = sampler.expected_windows(p, g_bound)
             for k, v in counts.items():
-                timings[f"{k}_pixels"] = timings.get(f"{k}_pixels", 0) + v
+                key = k if k.endswith("_s") else f"{k}_pixels"
+                timings[key] = timings.get(key, 0) + v
             if needed > g_bound:
                 raise WindowTooSmall(p.id, needed)
-            t0 = _tick(timings, "shade_and_bin_s", t0)
+            t0 = time.perf_counter()
             dense = vpl is not None or sensor.time_gate.enabled or np.any(
                 np.asarray(sensor_model.background_rate(noise, ambient_scale)) > 0)
             if not dense:

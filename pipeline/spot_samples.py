@@ -12,6 +12,8 @@ No bpy here.
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from pipeline import adaptive_sampling, transient_binning
@@ -58,7 +60,8 @@ class SpotSampler:
         return rad.reshape(shape), path.reshape(shape)
 
     def expected_windows(self, spot, window_bins: int):
-        """(start (P,), window (P, G) float32, needed bins, {reason: pixel count}) of one spot."""
+        """(start (P,), window (P, G) float32, needed bins, {reason: pixel count, stage: seconds}) of one spot."""
+        t0 = time.perf_counter()
         rad, path = self._shade(self.pos, self.nrm, self.alb, self.valid, spot)       # (S, P)
         keep = np.ones(self.n_pixels, bool)
         pix_parts, path_parts, amp_parts = [], [], []
@@ -94,6 +97,8 @@ class SpotSampler:
                     sel = sides == side
                     add(spread[sel], adaptive_sampling.footprint_samples(p_s[:, sel], side),
                         np.maximum(adaptive_sampling.footprint_samples(rad[:, spread[sel]], side), 0.0))
+        counts["render_s"] = time.perf_counter() - t0      # shading + new rays: the per-spot 'render'
+        t0 = time.perf_counter()
         base = np.flatnonzero(keep)
         add(base, path[:, base].T, rad[:, base].T)
         if spot.pixel is not None and spot.first_bounce_radiance > 0:
@@ -104,6 +109,7 @@ class SpotSampler:
         start, window, needed = transient_binning.bin_windows(
             np.concatenate(pix_parts), np.concatenate(path_parts), np.concatenate(amp_parts), self.n_pixels,
             self.sensor, window_bins)
+        counts["binning_s"] = time.perf_counter() - t0
         return start, window, needed, counts
 
 
