@@ -68,14 +68,45 @@ def footprint_path_spread(paths: np.ndarray):
     return own, jump
 
 
-def flag_pixels(paths, lit, valid, bin_width_m: float, spread_bins: float = 1.0) -> dict:
+def surface_breaks(positions, normals, valid, slope: float = 0.1, floor_m: float = 1e-3) -> np.ndarray:
+    """Pixels (H, W) whose samples, or whose first sample and a 4-neighbour's, do not lie on one surface.
+
+    Two samples x_i, x_j lie on one smooth surface when each lies on the other's tangent plane:
+    |(x_j - x_i) . n_i| <= slope |x_j - x_i| + floor_m. A depth edge (a step) or a crease breaks it,
+    whatever the lighting and however the edge crosses the pixel. Spot-independent.
+    positions, normals (S, H, W, 3), valid (S, H, W).
+    """
+    x = np.asarray(positions, np.float64)
+    n = np.asarray(normals, np.float64)
+    valid = np.asarray(valid, bool)
+
+    def breaks(xa, na, va, xb, nb, vb):
+        d = xb - xa
+        dist = np.linalg.norm(d, axis=-1)
+        off = np.maximum(np.abs(np.einsum("...c,...c->...", d, na)), np.abs(np.einsum("...c,...c->...", d, nb)))
+        return va & vb & (off > slope * dist + floor_m)
+
+    out = np.zeros(valid.shape[1:], bool)
+    for j in range(1, x.shape[0]):
+        out |= breaks(x[0], n[0], valid[0], x[j], n[j], valid[j])
+    right = breaks(x[0, :, :-1], n[0, :, :-1], valid[0, :, :-1], x[0, :, 1:], n[0, :, 1:], valid[0, :, 1:])
+    down = breaks(x[0, :-1], n[0, :-1], valid[0, :-1], x[0, 1:], n[0, 1:], valid[0, 1:])
+    out[:, :-1] |= right
+    out[:, 1:] |= right
+    out[:-1] |= down
+    out[1:] |= down
+    return out
+
+
+def flag_pixels(paths, lit, valid, bin_width_m: float, spread_bins: float = 1.0, breaks=None) -> dict:
     """Pixels whose footprint the base samples do not integrate well, by reason (each (H, W) bool).
 
-    'spread': one smooth lit surface whose path spreads over more than `spread_bins` bins
-    (integrated by interpolating the base samples, no new rays); 'depth': a jump to a neighbour
-    well beyond the pixel's own spread (a depth edge); 'shadow': lit and dark samples in the
-    3 x 3 neighbourhood; 'silhouette': surface next to void. 'edge' = depth | shadow |
-    silhouette (new rays), 'any' = spread | edge.
+    'depth': a step or crease (surface_breaks, given as `breaks`; without it, a jump to a
+    neighbour well beyond the pixel's own spread); 'shadow': lit and dark samples in the 3 x 3
+    neighbourhood; 'silhouette': surface next to void; 'edge' = depth | shadow | silhouette;
+    'resample' = edge pixels with a lit sample in their 3 x 3 neighbourhood (new rays: only there
+    can light be missing); 'spread': other lit pixels whose path spreads over more than
+    `spread_bins` bins (integrated by interpolating the base samples, no new rays).
     paths (S, H, W) optical paths (any value where not valid), lit (S, H, W) radiance > 0,
     valid (S, H, W) the sample sees a surface.
     """
@@ -85,18 +116,22 @@ def flag_pixels(paths, lit, valid, bin_width_m: float, spread_bins: float = 1.0)
     own, jump = footprint_path_spread(p)
     thr = spread_bins * bin_width_m
     valid_any = valid.any(axis=0)
-    depth = valid_any & (jump > np.maximum(2.0 * own, thr))
-    depth |= binary_dilation(depth, _NEIGHBOURS_4) & valid_any   # both sides of the jump
-    spread = valid_any & (np.maximum(own, jump) > thr)
+    if breaks is None:
+        depth = valid_any & (jump > np.maximum(2.0 * own, thr))
+        depth |= binary_dilation(depth, _NEIGHBOURS_4) & valid_any   # both sides of the jump
+    else:
+        depth = np.asarray(breaks, bool) & valid_any
     lit_any = lit.any(axis=0)
     dark_any = (valid & ~lit).any(axis=0)
-    shadow = (lit_any & dark_any) | (dark_any & binary_dilation(lit_any, _NEIGHBOURS_8)) \
-        | (lit_any & binary_dilation(dark_any, _NEIGHBOURS_8))
+    near_lit = binary_dilation(lit_any, _NEIGHBOURS_8)
+    shadow = (lit_any & dark_any) | (dark_any & near_lit) | (lit_any & binary_dilation(dark_any, _NEIGHBOURS_8))
     void_any = (~valid).any(axis=0)
     silhouette = (valid_any & void_any) | (valid_any & binary_dilation(void_any, _NEIGHBOURS_8))
     edge = depth | shadow | silhouette
-    return {"spread": spread & ~edge, "depth": depth, "shadow": shadow, "silhouette": silhouette, "edge": edge,
-            "any": spread | edge}
+    resample = edge & near_lit
+    spread = valid_any & lit_any & (np.maximum(own, jump) > thr) & ~resample
+    return {"spread": spread, "depth": depth, "shadow": shadow, "silhouette": silhouette, "edge": edge,
+            "resample": resample, "any": spread | resample}
 
 
 def interpolation_matrix(side_in: int, side_out: int) -> np.ndarray:

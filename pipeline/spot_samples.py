@@ -43,6 +43,7 @@ class SpotSampler:
         self.refined = (adaptive_sampling.RefinedGeometry(self.rays, sensor, geometry, int(round(adaptive_samples ** 0.5)))
                         if adaptive_samples else None)
         self.spread_bins = float(spread_bins)
+        self.breaks = adaptive_sampling.surface_breaks(pos, nrm, valid) if adaptive_samples else None
         self.power = float(laser_power_w)
         self.o = np.asarray(sensor.laser_origin, np.float64)
         self.c = np.asarray(sensor.sensor_origin, np.float64)
@@ -77,8 +78,8 @@ class SpotSampler:
             h, w = self.sensor.height, self.sensor.width
             flags = adaptive_sampling.flag_pixels(path.reshape(self.s, h, w), rad.reshape(self.s, h, w) > 0,
                                                   self.valid.reshape(self.s, h, w), self.sensor.bin_width_m,
-                                                  self.spread_bins)
-            edge = np.flatnonzero(flags["edge"])
+                                                  self.spread_bins, self.breaks)
+            edge = np.flatnonzero(flags["resample"])
             counts = {"edge": len(edge)}
             if len(edge):                       # new rays: shadow, depth and silhouette edges
                 keep[edge] = False
