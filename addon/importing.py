@@ -16,14 +16,16 @@ import bpy
 import numpy as np
 from mathutils.bvhtree import BVHTree
 
+from torch_recon.contract.errors import PlatolidarError
+
 COLLECTION_NAME = "Reconstruction"
 ERROR_ATTRIBUTE = "error_m"
 ERROR_COLOUR = "error_colour"
 POINTS_NAME = "Visible Depth"
 
 
-class ImportProblem(RuntimeError):
-    pass
+class ImportProblem(PlatolidarError, RuntimeError):
+    """A file the import cannot use; the message names it."""
 
 
 def reconstruction_collection(scene) -> bpy.types.Collection:

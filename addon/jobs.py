@@ -31,16 +31,13 @@ def parse_progress(line: str) -> float | None:
 
 
 def simulate_command(blender: str, blend_file: str, script: str, out_dir: str) -> list[str]:
-    """Background Blender running the simulator on a saved copy of the scene.
+    """Background Blender running the simulator on a saved copy of the scene (pipeline/launch.py)."""
+    from pipeline.launch import simulate_command as command
 
-    --python-exit-code makes a Python error in the script a non-zero exit (Blender's
-    default is 0); it must come before -P.
-    """
-    return [str(blender), "-b", str(blend_file), "--python-exit-code", "1", "-P", str(script),
-            "--", "--out", str(out_dir)]
+    return command(["--out", out_dir], blend=blend_file, blender=blender, script=script)
 
 
-def reconstruct_command(python: str, dataset: str, out_dir: str, mode: str = "fast") -> list[str]:
+def reconstruct_command(python: str, dataset: str, out_dir: str, mode: str) -> list[str]:
     return [str(python), "-m", "torch_recon", "fit", str(dataset), "--mode", mode, "--out", str(out_dir)]
 
 

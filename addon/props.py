@@ -5,9 +5,16 @@ Stored in the .blend with the scene. ``config_io`` turns them into a
 Times in ps (as typed), lengths in metres, as in the config.
 """
 
+import math
+
 import bpy
 from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, FloatVectorProperty,
                        IntProperty, PointerProperty, StringProperty)
+
+from pipeline.config import SimulationConfig  # on sys.path: addon/__init__.py
+from torch_recon.contract.methods import DEFAULT_FIT_METHOD, METHODS
+
+_SIM = SimulationConfig()   # the panel's defaults are the simulator's (one source of defaults)
 
 
 def _blend_relative_option() -> set:
@@ -51,21 +58,21 @@ class PLATOLIDAR_PG_settings(bpy.types.PropertyGroup):
     # -- sensor ------------------------------------------------------------------------
     camera: PointerProperty(name="Lidar Camera", type=bpy.types.Object, poll=_is_camera, update=_redraw_views,
                             description="Camera that is the lidar's detector (empty: the scene camera)")
-    width: IntProperty(name="Width", default=512, min=1, soft_max=2048, description="Detector pixels across")
-    height: IntProperty(name="Height", default=512, min=1, soft_max=2048, description="Detector pixels down")
-    bin_ps: FloatProperty(name="Bin Width (ps)", default=128.0, min=0.01, soft_max=1000.0,
+    width: IntProperty(name="Width", default=_SIM.width, min=1, soft_max=2048, description="Detector pixels across")
+    height: IntProperty(name="Height", default=_SIM.height, min=1, soft_max=2048, description="Detector pixels down")
+    bin_ps: FloatProperty(name="Bin Width (ps)", default=_SIM.bin_ps, min=0.01, soft_max=1000.0,
                           description="Time bin width in picoseconds")
     range_mode: EnumProperty(name="Histogram Length", default="BINS",
                              items=(("BINS", "Bin Count", "Give the number of time bins"),
                                     ("RANGE", "Maximum Path", "Give the longest optical path to record")))
-    bins: IntProperty(name="Bins", default=391, min=1, soft_max=4096, description="Number of time bins")
+    bins: IntProperty(name="Bins", default=_SIM.bins, min=1, soft_max=4096, description="Number of time bins")
     max_path_m: FloatProperty(name="Max Path", default=15.0, min=0.001, subtype="DISTANCE", unit="LENGTH",
                               description="Longest optical path (laser to scene to sensor) the histogram covers")
-    start_m: FloatProperty(name="Start", default=0.0, min=0.0, subtype="DISTANCE", unit="LENGTH",
+    start_m: FloatProperty(name="Start", default=_SIM.start_m, min=0.0, subtype="DISTANCE", unit="LENGTH",
                            description="Optical path at the start of the first bin")
-    pulse_fwhm_ps: FloatProperty(name="Pulse FWHM (ps)", default=128.0, min=0.01, soft_max=2000.0,
+    pulse_fwhm_ps: FloatProperty(name="Pulse FWHM (ps)", default=_SIM.pulse_fwhm_ps, min=0.01, soft_max=2000.0,
                                  description="Laser pulse full width at half maximum, in picoseconds")
-    pulse_shape: EnumProperty(name="Pulse Shape", default="gaussian",
+    pulse_shape: EnumProperty(name="Pulse Shape", default=_SIM.pulse_shape,
                               items=(("gaussian", "Gaussian", "Gaussian pulse of the given FWHM"),
                                      ("box", "Box", "All energy in a single bin")))
     laser_mode: EnumProperty(name="Laser Origin", default="COLOCATED", update=_redraw_views,
@@ -73,44 +80,44 @@ class PLATOLIDAR_PG_settings(bpy.types.PropertyGroup):
                                     ("OBJECT", "Object", "Laser at another object's location")))
     laser_object: PointerProperty(name="Laser Object", type=bpy.types.Object, update=_redraw_views,
                                   description="Object whose world location is the laser origin")
-    footprint_radius_m: FloatProperty(name="Footprint Radius", default=0.005, min=1e-5, subtype="DISTANCE",
+    footprint_radius_m: FloatProperty(name="Footprint Radius", default=_SIM.footprint_radius_m, min=1e-5, subtype="DISTANCE",
                                       unit="LENGTH", description="Radius of the lit laser spot on the surface")
     # -- noise and gating --------------------------------------------------------------------
-    photon_counts: BoolProperty(name="Photon Counts", default=False,
+    photon_counts: BoolProperty(name="Photon Counts", default=_SIM.photon_counts,
                                 description="Poisson-sample photon counts instead of expected values")
-    photons_per_pixel: FloatProperty(name="Photons", default=1000.0, min=0.0,
+    photons_per_pixel: FloatProperty(name="Photons", default=_SIM.photons_per_pixel, min=0.0,
                                      description="Signal budget: mean photons of the brightest lit pixel")
-    ambient_per_bin: FloatProperty(name="Ambient", default=0.0, min=0.0,
+    ambient_per_bin: FloatProperty(name="Ambient", default=_SIM.ambient_per_bin, min=0.0,
                                    description="Ambient photons per pixel per bin, before the wavelength filter")
-    wavelength_filter_factor: FloatProperty(name="Wavelength Filter", default=1.0, min=0.0, max=1.0,
+    wavelength_filter_factor: FloatProperty(name="Wavelength Filter", default=_SIM.wavelength_filter_factor, min=0.0, max=1.0,
                                             subtype="FACTOR",
                                             description="Fraction of ambient light passing the band-pass filter")
-    dark_counts_per_bin: FloatProperty(name="Dark Counts", default=0.0, min=0.0,
+    dark_counts_per_bin: FloatProperty(name="Dark Counts", default=_SIM.dark_counts_per_bin, min=0.0,
                                        description="Detector dark counts per pixel per bin")
-    time_gate: BoolProperty(name="Time Gate", default=False,
+    time_gate: BoolProperty(name="Time Gate", default=_SIM.time_gate,
                             description="Keep only a window of bins around the expected return")
-    gate_window_bins: IntProperty(name="Gate Window (bins)", default=32, min=1, description="Bins kept by the gate")
+    gate_window_bins: IntProperty(name="Gate Window (bins)", default=_SIM.gate_window_bins, min=1, description="Bins kept by the gate")
     # -- what to render ---------------------------------------------------------------------
-    bounces: IntProperty(name="Bounces", default=2, min=2, max=3, description="2, or 3 for third-order light")
-    third_bounce_vpls: IntProperty(name="Third-bounce Lights", default=16, min=1, soft_max=256,
+    bounces: IntProperty(name="Bounces", default=_SIM.bounces, min=2, max=3, description="2, or 3 for third-order light")
+    third_bounce_vpls: IntProperty(name="Third-bounce Lights", default=_SIM.third_bounce_vpls, min=1, soft_max=256,
                                    description="With 3 bounces: virtual point lights (one render each) per spot")
-    subpixel_grid: IntProperty(name="Sub-pixel Grid", default=2, min=1, max=8,
+    subpixel_grid: IntProperty(name="Sub-pixel Grid", default=math.isqrt(_SIM.subpixel_samples), min=1, max=8,
                                description="N: N x N sub-pixel samples per pixel, for depth edges spanning bins")
-    rgb: BoolProperty(name="RGB Images", default=False, description="Also render RGB images (RGB-shadow baseline)")
-    train_depth: BoolProperty(name="Train-view Depth", default=True, description="Ground-truth depth of the sensor")
-    gt_mesh: BoolProperty(name="Ground-truth Mesh", default=True, description="Export the scene mesh (world frame)")
-    test_views_dolly: IntProperty(name="Dolly Views", default=39, min=0, description="Test views (0: none)")
-    test_views_orbit: IntProperty(name="Orbit Views", default=100, min=0, description="Test views (0: none)")
-    test_view_resolution: IntProperty(name="Test View Size", default=128, min=1)
+    rgb: BoolProperty(name="RGB Images", default=_SIM.rgb, description="Also render RGB images (RGB-shadow baseline)")
+    train_depth: BoolProperty(name="Train-view Depth", default=_SIM.train_depth, description="Ground-truth depth of the sensor")
+    gt_mesh: BoolProperty(name="Ground-truth Mesh", default=_SIM.gt_mesh, description="Export the scene mesh (world frame)")
+    test_views_dolly: IntProperty(name="Dolly Views", default=_SIM.test_views_dolly, min=0, description="Test views (0: none)")
+    test_views_orbit: IntProperty(name="Orbit Views", default=_SIM.test_views_orbit, min=0, description="Test views (0: none)")
+    test_view_resolution: IntProperty(name="Test View Size", default=_SIM.test_view_resolution, min=1)
     # -- spots --------------------------------------------------------------------------------
     spot_source: EnumProperty(name="Spots", default="LIST",
                               items=(("LIST", "Listed", "Simulate the spots in the list"),
                                      ("RANDOM", "Random at Simulation", "Let the simulator draw random spots")))
     spots: CollectionProperty(type=PLATOLIDAR_PG_spot)
     active_spot_index: IntProperty(name="Active Spot", default=0, min=0)
-    random_candidates: IntProperty(name="Candidates", default=24, min=1, description="Random candidate spots")
-    random_keep: IntProperty(name="Keep", default=16, min=1, description="Spots kept by diversity")
-    seed: IntProperty(name="Seed", default=0, min=0, description="Seed of every random choice")
+    random_candidates: IntProperty(name="Candidates", default=_SIM.random_candidates, min=1, description="Random candidate spots")
+    random_keep: IntProperty(name="Keep", default=_SIM.random_keep, min=1, description="Spots kept by diversity")
+    seed: IntProperty(name="Seed", default=_SIM.seed, min=0, description="Seed of every random choice")
     show_rays: BoolProperty(name="Show Laser Rays", default=True, update=_redraw_views)
     # -- jobs -------------------------------------------------------------------------------
     output_dir: StringProperty(name="Dataset Folder", default="//lidar_dataset", subtype="DIR_PATH", options=_BLEND_RELATIVE,
@@ -118,9 +125,8 @@ class PLATOLIDAR_PG_settings(bpy.types.PropertyGroup):
     recon_dataset_dir: StringProperty(name="Dataset", default="", subtype="DIR_PATH", options=_BLEND_RELATIVE,
                                       description="Dataset to reconstruct (empty: the simulation's folder)")
     recon_out_dir: StringProperty(name="Output Folder", default="//lidar_recon", subtype="DIR_PATH", options=_BLEND_RELATIVE)
-    recon_mode: EnumProperty(name="Mode", default="fast",
-                             items=(("fast", "Fast", "Grid field fit (default, CPU friendly)"),
-                                    ("platonerf", "PlatoNeRF", "The published NeRF method (slow reference)")))
+    recon_mode: EnumProperty(name="Mode", default=DEFAULT_FIT_METHOD,
+                             items=[(m.name, m.label, m.description) for m in METHODS.values() if m.command == "fit"])
     import_path: StringProperty(name="Mesh", default="", subtype="FILE_PATH", options=_BLEND_RELATIVE,
                                 description="Reconstructed mesh (.ply or .obj, Blender world frame)")
     import_color_error: BoolProperty(name="Colour by Error", default=False,

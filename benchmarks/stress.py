@@ -27,7 +27,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
-from benchmarks.common import REPO_ROOT, RESULTS_DIR, machine_info, machine_line, write_json  # noqa: E402
+from benchmarks.harness.context import REPO_ROOT, RESULTS_DIR  # noqa: E402
+from benchmarks.harness.report import machine_info, machine_line, write_json  # noqa: E402
 from benchmarks.stress_cases import KNOWN_ISSUES, all_cases  # noqa: E402
 from benchmarks.stress_checks import CheckFailed, NonFinite  # noqa: E402
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import REPO_ROOT
+from benchmarks.harness.context import REPO_ROOT
 from benchmarks.stress_checks import (CheckFailed, NonFinite, check_dataset, fit_checked, preprocess_checked,
                                       smooth_sweep, transient_bytes_equal)
 
@@ -36,7 +36,7 @@ KNOWN_ISSUES: dict = {}
 def synth(path, size=16, photons=None, seed=0, sample_type="float32", pulse_shape="gaussian", bins=300,
           spots=4, scene="box", only_first_bounce=False, scale_counts=1.0, test_views=2, clip=None):
     """An analytic dataset (noise-free, or Poisson with `photons` for the brightest two-bounce pixel)."""
-    from torch_recon import synthetic as sy
+    from torch_recon.contract import synthetic as sy
     from torch_recon.contract.analytic import range_image, render_two_bounce
     from torch_recon.contract.dataset import (DatasetWriter, GroundTruth, GroundTruthViews, Manifest, NoiseSpec, Provenance,
                                      Spot, Transient, TransientLayout)

@@ -62,9 +62,11 @@ def main(argv=None) -> int:
 
     print(f"== demo: {args.example}, {args.resolution}x{args.resolution}, {args.spots} spots -> {out}")
     if (ROOT / "pipeline" / "simulate.py").is_file():
-        timings["simulate"] = _run([py, "pipeline/simulate.py", "--example", args.example, "--out", str(dataset),
-                                    "--resolution", str(args.resolution), "--spots", str(args.spots),
-                                    "--test-views", str(args.test_views), "--seed", str(args.seed)],
+        from pipeline.launch import simulate_command
+
+        timings["simulate"] = _run(simulate_command(["--example", args.example, "--out", dataset,
+                                                     "--resolution", args.resolution, "--spots", args.spots,
+                                                     "--test-views", args.test_views, "--seed", args.seed]),
                                    out / "simulate.log")
     else:
         missing.append("simulate (pipeline/simulate.py, issue 3)")

@@ -12,11 +12,12 @@ import bpy
 import numpy as np
 from mathutils import Matrix, Vector
 
+from torch_recon.contract.errors import PlatolidarError
 from pipeline.config import CONFIG_TEXT_NAME, SimulationConfig, SpotConfig
 from torch_recon.contract.scenes import AreaLight, BlenderPrimitive, ExampleScene, MeshPart
 
 
-class SceneError(RuntimeError):
+class SceneError(PlatolidarError, RuntimeError):
     """The scene cannot be simulated (no camera, unsupported camera, ...)."""
 
 
@@ -166,12 +167,31 @@ def rigid_c2w(cam) -> np.ndarray:
     return out
 
 
-def ray_cast(scene, depsgraph, origin, direction, max_dist=1e4):
-    """First hit of a ray in the evaluated scene: (point, geometric normal, object) or None."""
-    hit, loc, nrm, index, obj, _ = scene.ray_cast(depsgraph, Vector(origin), Vector(direction), distance=max_dist)
-    if not hit:
-        return None
-    return np.array(loc, np.float64), np.array(nrm, np.float64), obj
+def ray_cast(scene, depsgraph, origin, direction, max_dist=1e4, exclude=(), max_hops: int = 16):
+    """First hit of a ray in the evaluated scene: (point, geometric normal, object) or None.
+
+    Objects in `exclude` (e.g. the laser's own housing) are passed through.
+    """
+    origin, direction = Vector(origin), Vector(direction).normalized()
+    for _ in range(max_hops):
+        hit, loc, nrm, index, obj, _ = scene.ray_cast(depsgraph, origin, direction, distance=max_dist)
+        if not hit:
+            return None
+        if obj is None or obj.original not in exclude:
+            return np.array(loc, np.float64), np.array(nrm, np.float64), obj
+        origin = loc + direction * 1e-5
+    return None
+
+
+def random_spot_targets(scene, depsgraph, sensor, n_candidates: int, keep: int, seed: int, exclude=()):
+    """contract.spots.random_spot_targets with Blender's ray casts (the laser object in `exclude`)."""
+    from torch_recon.contract.spots import random_spot_targets as pick
+
+    def cast(origin, direction):
+        hit = ray_cast(scene, depsgraph, origin, direction, exclude=exclude)
+        return None if hit is None else hit[:2]
+
+    return pick(sensor, cast, n_candidates, keep, seed)
 
 
 def object_albedo(obj) -> float | None:

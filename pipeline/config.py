@@ -16,6 +16,8 @@ import json
 import math
 from dataclasses import asdict, dataclass, field, fields
 
+from torch_recon.contract.errors import SettingsError
+from torch_recon.contract.settings import check_value, find_spec, load_file
 from torch_recon.contract.units import bin_widths_consistent, m_to_ps
 
 CONFIG_SCHEMA_VERSION = "1.0"
@@ -23,12 +25,12 @@ CONFIG_SCHEMA_VERSION = "1.0"
 CONFIG_TEXT_NAME = "platolidar_config.json"
 
 
-class ConfigError(ValueError):
+class ConfigError(SettingsError):
     """Bad settings: names the source and the setting and says what was expected."""
 
     def __init__(self, source: str, setting: str, message: str):
-        self.source, self.setting = source, setting
-        super().__init__(f"{source}: setting '{setting}': {message}")
+        super().__init__(setting, message, source)
+        self.setting = setting
 
 
 @dataclass
@@ -160,6 +162,11 @@ class SimulationConfig:
         if kw.get("bin_m") is not None and "bin_ps" not in kw:
             kw["bin_ps"] = m_to_ps(kw["bin_m"]) if isinstance(kw["bin_m"], (int, float)) else 128.0
         spots = kw.pop("spots", [])
+        for key, value in kw.items():   # types and ranges: the shared settings mechanism
+            try:
+                kw[key] = check_value(find_spec(cls, key), value)
+            except SettingsError as exc:
+                raise ConfigError(source, key, exc.detail) from None
         if not isinstance(spots, list):
             raise ConfigError(source, "spots", "expected a list")
         spot_keys = {f.name for f in fields(SpotConfig)}
@@ -180,9 +187,9 @@ class SimulationConfig:
 
     @classmethod
     def load(cls, path) -> "SimulationConfig":
+        """A settings file: JSON, or TOML by suffix (the shared reader, contract/settings.py)."""
         try:
-            with open(path) as f:
-                text = f.read()
+            d = load_file(path)
         except OSError as exc:
             raise ConfigError(str(path), "", f"cannot read ({exc.strerror})") from None
-        return cls.from_json(text, str(path))
+        return cls.from_dict(d, str(path))

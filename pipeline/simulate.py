@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import glob
-import json
 import os
 import sys
 from pathlib import Path
@@ -52,9 +51,11 @@ def _argv() -> list:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="simulate.py", description="Cycles two-bounce lidar simulator "
+    ap = argparse.ArgumentParser(prog="platolidar simulate", description="Cycles two-bounce lidar simulator "
                                  "(defaults: the paper's 512x512 pixels, 391 bins of 128 ps, 16 spots)")
     ap.add_argument("blend", nargs="?", help="scene .blend (with a Blender binary: the file Blender opened)")
+    ap.add_argument("--blender", metavar="BIN", help="(platolidar simulate only) run inside this Blender binary "
+                    "instead of the bpy module")
     ap.add_argument("--out", required=True, help="dataset directory to write (replaced atomically)")
     ap.add_argument("--example", help="build an example scene instead of a .blend: "
                     "cave-chair, monkey, occluders, curved-wall, low-albedo, ambient")
@@ -99,6 +100,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--test-view-resolution", type=int)
     ap.add_argument("--no-gt", action="store_true", help="no ground truth (depths, mesh)")
     ap.add_argument("--seed", type=int)
+    ap.add_argument("--set", dest="set_values", action="append", default=[], metavar="KEY=VALUE",
+                    help="any SimulationConfig setting by name, e.g. --set photons_per_pixel=500 (repeatable; "
+                         "wins over the options above)")
     return ap
 
 
@@ -178,69 +182,78 @@ def apply_options(cfg, args):
 
 
 def load_config(args, bs):
-    from pipeline.config import ConfigError, SimulationConfig
+    from pipeline.config import SimulationConfig
 
     cfg = bs.stored_config() or SimulationConfig()
     if args.config:
+        from torch_recon.contract.settings import load_file
+
         file_cfg = SimulationConfig.load(args.config)          # validates, rejects unknown settings
-        try:
-            raw = json.loads(Path(args.config).read_text())
-        except (OSError, json.JSONDecodeError) as exc:
-            raise ConfigError(args.config, "", str(exc)) from None
+        raw = load_file(args.config)
         merged = {**cfg.to_dict(), **{k: v for k, v in raw.items() if k != "schema_version"}}
         merged["spots"] = [vars(s) for s in file_cfg.spots] if "spots" in raw else [vars(s) for s in cfg.spots]
         cfg = SimulationConfig.from_dict(merged, args.config)
     cfg = apply_options(cfg, args)
+    cfg = apply_sets(cfg, args.set_values)
     return cfg.validate("command line" if not args.config else f"command line + {args.config}")
 
 
-def main() -> int:
-    args = build_parser().parse_args(_argv())    # exits 2 with a usage line on unknown options
-    _add_venv_site_packages()
+def apply_sets(cfg, assignments):
+    """--set KEY=VALUE over a SimulationConfig, each value type-checked by the shared settings mechanism."""
+    from torch_recon.contract.settings import check_value, find_spec, parse_assignments
+    from torch_recon.contract.errors import SettingsError
+
+    for key, raw in parse_assignments(assignments).items():
+        if key == "spots":
+            raise SettingsError("spots", "set spots with --spot-list or a --config file")
+        setattr(cfg, key, check_value(find_spec(type(cfg), key), raw))
+    return cfg
+
+
+def simulate(args) -> int:
     import bpy
 
     from pipeline import blender_scene as bs
     from pipeline import simulator
     from torch_recon.contract import scenes
-    from pipeline.config import ConfigError
-    from torch_recon.contract.dataset import DatasetError
 
-    try:
-        if args.example and args.blend:
-            raise simulator.SimulationError("give either a .blend or --example, not both")
-        if args.example:
-            try:
-                ex = scenes.example(args.example)
-            except KeyError as exc:
-                raise simulator.SimulationError(exc.args[0]) from None
-            bs.build_example(ex)
-            label = f"example:{args.example}"
-        elif args.blend:
-            path = os.path.abspath(args.blend)
-            if not os.path.isfile(path):
-                raise simulator.SimulationError(f"{args.blend}: no such .blend file")
-            try:
-                bpy.ops.wm.open_mainfile(filepath=path, load_ui=False)
-            except RuntimeError as exc:
-                msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else "unreadable"
-                raise simulator.SimulationError(f"{args.blend}: cannot open as a .blend file ({msg})") from None
-            label = os.path.basename(path)
-        elif bpy.data.filepath:
-            label = os.path.basename(bpy.data.filepath)   # Blender binary: the file it opened
-        else:
-            raise simulator.SimulationError("no scene: give a .blend file or --example NAME")
-        cfg = load_config(args, bs)
-        result = simulator.run(cfg, args.out, label, keep_requested=args.spots is not None)
-    except (ConfigError, DatasetError, bs.SceneError, simulator.SimulationError, FileExistsError) as exc:
-        print(f"simulate: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("simulate: interrupted; nothing written", file=sys.stderr)
-        return 130
+    if args.example and args.blend:
+        raise simulator.SimulationError("give either a .blend or --example, not both")
+    if args.example:
+        try:
+            ex = scenes.example(args.example)
+        except KeyError as exc:
+            raise simulator.SimulationError(exc.args[0]) from None
+        bs.build_example(ex)
+        label = f"example:{args.example}"
+    elif args.blend:
+        path = os.path.abspath(args.blend)
+        if not os.path.isfile(path):
+            raise simulator.SimulationError(f"{args.blend}: no such .blend file")
+        try:
+            bpy.ops.wm.open_mainfile(filepath=path, load_ui=False)
+        except RuntimeError as exc:
+            msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else "unreadable"
+            raise simulator.SimulationError(f"{args.blend}: cannot open as a .blend file ({msg})") from None
+        label = os.path.basename(path)
+    elif bpy.data.filepath:
+        label = os.path.basename(bpy.data.filepath)   # Blender binary: the file it opened
+    else:
+        raise simulator.SimulationError("no scene: give a .blend file or --example NAME")
+    cfg = load_config(args, bs)
+    result = simulator.run(cfg, args.out, label, keep_requested=args.spots is not None)
     t = result["timings"]
     print(f"simulate: wrote {args.out}: {result['spots']} spots, {cfg.width}x{cfg.height}x{cfg.bins} bins, "
           f"{t['total_s']:.1f} s", file=sys.stderr)
     return 0
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(_argv() if argv is None else argv)  # exits 2 with a usage line on bad options
+    _add_venv_site_packages()
+    from torch_recon.contract.errors import run_command
+
+    return run_command(simulate, args, prog="simulate", interrupted="interrupted; nothing written")
 
 
 if __name__ == "__main__":

@@ -26,6 +26,7 @@ from pipeline import blender_scene as bs
 from pipeline import sensor_model, third_bounce, transient_binning
 from pipeline.spot_samples import SpotSampler, windows_to_dense
 from torch_recon.contract import ground_truth, spots
+from torch_recon.contract.errors import PlatolidarError
 from pipeline.cycles_render import EMITTER_OFFSET_M, CyclesRenderer
 from torch_recon.contract.dataset import (DatasetError, DatasetWriter, Manifest, NoiseSpec, Provenance, PulseSpec,
                                  SensorSpec, Spot, TimeGate, TransientLayout, load_dataset, transient_relpath)
@@ -38,7 +39,7 @@ RGB_POWER_W = 100.0          # point light of the RGB-shadow images (exposure on
 DEFAULT_ALBEDO = 0.8
 
 
-class SimulationError(RuntimeError):
+class SimulationError(PlatolidarError, RuntimeError):
     """A scene/setting combination that cannot be simulated; the message says which and why."""
 
 
@@ -85,6 +86,8 @@ def plan_spots(cfg, scene, depsgraph, sensor, keep_requested: bool) -> list:
     o = np.asarray(sensor.laser_origin)
     forward = -np.asarray(sensor.camera_to_world)[:3, 2]
     rng = np.random.default_rng(cfg.seed)
+    laser_object = scene.objects.get(cfg.laser_object) if cfg.laser_object else None
+    exclude = (laser_object.original,) if laser_object is not None else ()   # the laser's own housing
     if cfg.spots:
         plans = []
         for i, s in enumerate(cfg.spots):
@@ -102,11 +105,18 @@ def plan_spots(cfg, scene, depsgraph, sensor, keep_requested: bool) -> list:
         if keep_requested and cfg.random_keep > len(pool):
             pool = [p for p, _ in plans]
     else:
-        dirs = spots.random_candidate_directions(cfg.random_candidates, rng, sensor)
-        pool = [SpotPlan(i, f"random_{i}", d) for i, d in enumerate(dirs)]
+        # the same recipe (and seed) as the add-on's "Generate Spots": selection already done
+        targets, _, found = bs.random_spot_targets(scene, depsgraph, sensor, cfg.random_candidates, cfg.random_keep,
+                                                   cfg.seed, exclude)
+        if found < cfg.random_candidates:
+            log(f"warning: only {found} of {cfg.random_candidates} random candidates hit a surface the laser reaches")
+        pool = []
+        for i, t in enumerate(targets):
+            d = (t - o) / np.linalg.norm(t - o)
+            pool.append(SpotPlan(i, f"random_{i}", d))
     hits = []
     for p in pool:
-        hit = bs.ray_cast(scene, depsgraph, o + 1e-4 * p.direction, p.direction)
+        hit = bs.ray_cast(scene, depsgraph, o + 1e-4 * p.direction, p.direction, exclude=exclude)
         if hit is None:
             log(f"warning: spot {p.id} ({p.name}): the laser ray hits nothing; spot skipped")
             continue
@@ -116,11 +126,11 @@ def plan_spots(cfg, scene, depsgraph, sensor, keep_requested: bool) -> list:
         hits.append(p)
     if not hits:
         raise SimulationError("no laser spot hits the scene (check the spot targets and that the scene has geometry)")
-    if keep_requested or not cfg.spots:
+    if keep_requested and cfg.spots:
         k = cfg.random_keep
         if k < len(hits):
             idx = spots.select_diverse_spots(np.array([p.first_bounce for p in hits]),
-                                                      np.array([p.normal for p in hits]), k, rng)
+                                             np.array([p.normal for p in hits]), k, rng)
             hits = [hits[int(i)] for i in idx]   # selection order: the first k are a spread-out subset
         elif k > len(hits):
             log(f"warning: {k} spots requested, {len(hits)} available")

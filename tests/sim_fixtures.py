@@ -8,13 +8,13 @@ import sys
 import textwrap
 from pathlib import Path
 
+from pipeline.launch import run_simulate
+
 ROOT = Path(__file__).resolve().parents[1]
-SIM = [sys.executable, str(ROOT / "pipeline" / "simulate.py")]
 
 
 def simulate(out, *args, check=True, blend=None):
-    cmd = SIM + ([str(blend)] if blend else []) + ["--out", str(out), *map(str, args)]
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    proc = run_simulate(["--out", out, *args], blend=blend, cwd=ROOT, timeout=300)
     if check and proc.returncode != 0:
         raise AssertionError(f"simulate failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
     return proc

@@ -126,3 +126,16 @@ def test_load_config_round_trip_and_bad_files(room, tmp_path):
     bad.write_text(json.dumps(d))
     expect_error(bpy.ops.platolidar.load_config, "square", filepath=str(bad))
     assert room.platolidar.width == 48  # a refused file changes nothing
+
+
+def test_panel_defaults_are_the_simulators(blank):
+    """One source of defaults: an untouched panel gives SimulationConfig() (camera and spots aside)."""
+    from addon.config_io import settings_to_config
+
+    cfg = settings_to_config(bpy.context.scene, strict=False).to_dict()
+    ref = SimulationConfig().to_dict()
+    for key in ("camera", "spots"):
+        cfg.pop(key), ref.pop(key)
+    assert cfg.keys() == ref.keys()
+    for key, want in ref.items():   # Blender stores FloatProperty in float32
+        assert cfg[key] == (pytest.approx(want, rel=1e-6) if isinstance(want, float) else want), key

@@ -4,7 +4,6 @@ bpy module, exactly as `blender -b file -P simulate.py -- --out DIR` would), giv
 as a headless run on the saved .blend; its ground-truth mesh imports in place with zero error."""
 
 import json
-import subprocess
 import sys
 
 import bpy
@@ -12,6 +11,7 @@ import numpy as np
 import pytest
 
 from addon_fixtures import REPO, blank, call, fake_executable, room, set_prefs  # noqa: F401 (fixtures)
+from pipeline.launch import run_simulate
 
 BLENDER_SHIM = f'''
 import os, sys
@@ -48,8 +48,7 @@ def test_panel_and_headless_runs_give_the_same_dataset(room, tmp_path):
     room.platolidar.output_dir = "//panel_ds"  # relative to the saved .blend
     res, err = call(bpy.ops.platolidar.simulate)
     assert err is None and res == {"FINISHED"}, err
-    headless = subprocess.run([sys.executable, str(REPO / "pipeline" / "simulate.py"), str(blend),
-                               "--out", str(tmp_path / "headless_ds")], capture_output=True, text=True, timeout=300)
+    headless = run_simulate(["--out", tmp_path / "headless_ds"], blend=blend, timeout=300)
     assert headless.returncode == 0, headless.stdout[-1500:] + headless.stderr[-1500:]
     m_panel, tr_panel = _dataset(tmp_path / "panel_ds")
     m_head, tr_head = _dataset(tmp_path / "headless_ds")

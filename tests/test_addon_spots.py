@@ -174,3 +174,29 @@ def test_click_modal_adds_the_spot_under_the_mouse(room):
     assert Op.modal(op, ctx, NS(type="MOUSEMOVE", value="NOTHING", mouse_x=0, mouse_y=0)) == {"PASS_THROUGH"}
     assert Op.modal(op, ctx, NS(type="ESC", value="PRESS", mouse_x=0, mouse_y=0)) == {"FINISHED"}
     assert ("header", None) in calls and "restore" in calls and len(room.platolidar.spots) == 1
+
+
+def test_generate_spots_equals_the_simulators_random_spots(room):
+    """Same seed, same spots: the panel's "Generate Spots" and random spots at simulation (one recipe)."""
+    import numpy as np
+
+    from addon.config_io import settings_to_config
+    from pipeline import blender_scene as bs
+    from pipeline.simulator import plan_spots, sensor_spec
+
+    s = room.platolidar
+    s.random_candidates, s.random_keep, s.seed = 12, 4, 7
+    res, err = call(bpy.ops.platolidar.generate_spots)
+    assert err is None and res == {"FINISHED"}
+    panel = np.array([tuple(sp.target) for sp in s.spots])
+    s.spots.clear()
+    s.spot_source = "RANDOM"
+    cfg = settings_to_config(room)
+    assert cfg.spots == []
+    cam = bs.sensor_camera(room, cfg.camera)
+    fov, axis = bs.camera_fov(cam, cfg.width, cfg.height)
+    c2w = bs.rigid_c2w(cam)
+    sensor = sensor_spec(cfg, c2w, fov, axis, c2w[:3, 3])
+    plans = plan_spots(cfg, room, bpy.context.evaluated_depsgraph_get(), sensor, keep_requested=False)
+    sim = np.array([p.first_bounce for p in plans])
+    np.testing.assert_allclose(sim, panel, atol=1e-4)

@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from torch_recon import frames
+from torch_recon.contract import frames
 
 from torch_recon.contract.reference import REFERENCE_FILE as REF  # noqa: E402
 

@@ -8,7 +8,8 @@ import pytest
 from torch_recon.bflidar import BFLidarSettings, carve, grid_search, occupancy_posterior, rethreshold
 from torch_recon.contract.dataset import load_dataset
 from torch_recon.preprocess import preprocess_dataset
-from torch_recon.contract.synthetic import box_room_scene, default_sensor, paper_laser_directions, write_analytic_dataset
+from torch_recon.contract.synthetic import (box_room_scene, default_sensor, paper_laser_directions,
+                                           write_analytic_dataset)
 
 
 def test_occupancy_posterior_by_hand():

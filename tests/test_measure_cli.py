@@ -10,7 +10,8 @@ import pytest
 from torch_recon.cli import main
 from torch_recon.contract.frames import paper_test_view_cameras
 from torch_recon.measurements import Measurements
-from torch_recon.contract.synthetic import box_room_scene, default_sensor, paper_laser_directions, write_analytic_dataset
+from torch_recon.contract.synthetic import (box_room_scene, default_sensor, paper_laser_directions,
+                                           write_analytic_dataset)
 
 
 @pytest.fixture(scope="module")

@@ -145,8 +145,10 @@ def test_config_round_trip_and_errors():
     cfg = override(FitConfig(), ["fast.resolution=96", "seed=3", "loss.distance_weight=10"])
     assert cfg.fast.resolution == 96 and cfg.seed == 3 and cfg.loss.distance_weight == 10
     assert FitConfig.from_dict(cfg.to_dict()) == cfg
-    with pytest.raises(ValueError, match="unknown setting"):
+    with pytest.raises(ValueError, match="setting fast.nope: unknown setting"):
         override(FitConfig(), ["fast.nope=1"])
+    with pytest.raises(ValueError, match="setting fast.lr: expected a float, got 'abc'"):
+        override(FitConfig(), ["fast.lr=abc"])
     with pytest.raises(ValueError, match="mode"):
         FitConfig(mode="nerf")
     with pytest.raises(ValueError, match="unknown setting"):

@@ -135,11 +135,13 @@ def _fails(tmp_path, *args, blend=None, expect=""):
 
 @pytest.mark.parametrize("args,expect", [
     (["--spot-list", "0,-1,0.2"], "behind the sensor"),
-    (["--bins", 0], "setting 'bins'"),
+    (["--bins", 0], "setting bins"),
     (["--bins", 60], "exceed the bin range"),
     (["--frobnicate"], "unrecognized arguments"),
     (["--subpixel", 3], "subpixel_samples"),
     (["--wavelength-filter", 2], "wavelength_filter_factor"),
+    (["--set", "bins=abc"], "setting bins: expected an integer, got 'abc'"),
+    (["--set", "colour=red"], "setting colour: unknown setting"),
 ])
 def test_bad_options(tmp_path, args, expect):
     _fails(tmp_path, "--example", "cave-chair", *SMALL, *args, expect=expect)
@@ -181,7 +183,7 @@ def test_config_file_then_options(tmp_path):
     assert (s.width, s.height, s.bins, s.bin_width_ps) == (12, 10, 450, 100.0)   # the option wins over the file
     assert len(ds.manifest.spots) == 2 and ds.manifest.ground_truth.train_depth_file is None
     cfg.write_text(json.dumps({"bins": 300, "colour": "red"}))
-    _fails(tmp_path, "--example", "cave-chair", "--config", cfg, expect="'colour'")
+    _fails(tmp_path, "--example", "cave-chair", "--config", cfg, expect="setting colour: unknown setting")
 
 
 def test_time_gate_keeps_the_signal_and_gains_t_over_w(tmp_path):
@@ -204,7 +206,7 @@ def test_time_gate_keeps_the_signal_and_gains_t_over_w(tmp_path):
 def test_laser_offset_from_the_sensor(blend_dir, tmp_path):
     """A laser object 0.4 m beside the camera: l, paths and energy still match the analytic renderer."""
     from sim_fixtures import blend_trimesh
-    from torch_recon import analytic
+    from torch_recon.contract import analytic
 
     blend = build_blend(blend_dir / "laser.blend", laser_at=[0.4, 0.0, 0.1], config={"laser_object": "laser"},
                         spots=[{"target": [0.5, 3.0, 0.5]}, {"target": [-1.0, 2.0, -1.0]}])

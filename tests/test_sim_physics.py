@@ -12,7 +12,7 @@ import pytest
 pytest.importorskip("bpy")
 
 from torch_recon.contract import scenes  # noqa: E402
-from torch_recon import analytic  # noqa: E402
+from torch_recon.contract import analytic  # noqa: E402
 from torch_recon.contract.dataset import load_dataset  # noqa: E402
 from torch_recon.contract.frames import camera_ray_directions  # noqa: E402
 

@@ -7,7 +7,6 @@ A case failing because of a reported bug outside benchmarks/ is xfail (strict: i
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from benchmarks.stress import select
@@ -39,19 +38,3 @@ def test_room_scale_invariance(results):
     a = results["sim-room-0.1m"].metrics["depth_median_rel_err"]
     b = results["sim-room-100m"].metrics["depth_median_rel_err"]
     assert abs(a - b) < 0.2 * max(a, b), (a, b)
-
-
-def test_integrate_bins_sums_adjacent_bins(tmp_path):
-    """The temporal ablation's bin integration: coarse bin j = sum of fine bins f*j .. f*j+f-1; GT carried over."""
-    from benchmarks.recon_harness import integrate_bins
-    from benchmarks.stress_cases import synth
-    from torch_recon.contract.dataset import load_dataset
-
-    src = synth(tmp_path / "src", size=8, bins=300, spots=2, test_views=2)
-    a, b = load_dataset(src), load_dataset(integrate_bins(src, tmp_path / "dst", 4))
-    assert (b.sensor.bins, b.sensor.bin_width_ps) == (75, 4 * a.sensor.bin_width_ps)
-    assert abs(b.sensor.bin_width_m - 4 * a.sensor.bin_width_m) < 1e-9
-    for s in a.manifest.spots:
-        fine, coarse = a.read_transient(s.id).dense(), b.read_transient(s.id).dense()
-        np.testing.assert_allclose(fine.reshape(8, 8, 75, 4).sum(-1), coarse, rtol=1e-5)
-    np.testing.assert_array_equal(a.test_views()[2], b.test_views()[2])

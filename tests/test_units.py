@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from torch_recon import units
+from torch_recon.contract import units
 
 
 def test_paper_bin_width():

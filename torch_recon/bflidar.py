@@ -27,9 +27,14 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from .contract.errors import SettingsError, UnconstrainedMeasurementsError
+
 
 @dataclass
 class BFLidarSettings:
+    SETTINGS_META = {"voxels": {"range": (4, None)}, "occupancy_threshold": {"range": (0.0, 1.0)},
+                     "bbox_padding_m": {"unit": "m"}}
+
     voxels: int = 128                  # voxels along the longest bbox axis
     bbox_min: tuple | None = None      # None: visible points' bounds + padding
     bbox_max: tuple | None = None
@@ -50,12 +55,12 @@ class BFLidarSettings:
 
     def validate(self):
         if self.voxels < 4:
-            raise ValueError(f"voxels must be >= 4, got {self.voxels}")
+            raise SettingsError("voxels", f"expected an integer >= 4, got {self.voxels}")
         if not 0 < self.occupancy_threshold < 1:
-            raise ValueError(f"occupancy_threshold must be in (0, 1), got {self.occupancy_threshold}")
+            raise SettingsError("occupancy_threshold", f"expected a value in (0, 1), got {self.occupancy_threshold}")
         for name in ("eta", "xi", "p0", "p1"):
             if not 0 < getattr(self, name) < 1:
-                raise ValueError(f"{name} must be in (0, 1), got {getattr(self, name)}")
+                raise SettingsError(name, f"expected a value in (0, 1), got {getattr(self, name)}")
 
 
 @dataclass
@@ -122,13 +127,14 @@ def _grid(meas, points, s: BFLidarSettings):
         lo, hi = np.asarray(s.bbox_min, float), np.asarray(s.bbox_max, float)
     else:
         if len(points) == 0:
-            raise ValueError("no visible points: cannot place the carving grid (give bbox_min/bbox_max)")
+            raise UnconstrainedMeasurementsError("no visible points: cannot place the carving grid "
+                                                 "(give bbox_min/bbox_max)")
         lo = points.min(0) - s.bbox_padding_m
         hi = points.max(0) + s.bbox_padding_m
         lo = np.minimum(lo, np.asarray([sp.first_bounce for sp in meas.spots]).min(0) - s.bbox_padding_m)
         hi = np.maximum(hi, np.asarray([sp.first_bounce for sp in meas.spots]).max(0) + s.bbox_padding_m)
     if not np.all(hi > lo):
-        raise ValueError(f"empty carving box {lo.tolist()} .. {hi.tolist()}")
+        raise UnconstrainedMeasurementsError(f"empty carving box {lo.tolist()} .. {hi.tolist()}")
     vox = float((hi - lo).max()) / s.voxels
     shape = np.maximum(np.ceil((hi - lo) / vox).astype(int), 2)
     return lo, lo + shape * vox, vox, tuple(int(v) for v in shape)
@@ -189,7 +195,8 @@ def carve(meas, settings: BFLidarSettings | None = None, device="cpu", progress=
     s.validate()
     t0 = time.perf_counter()
     if meas.visible_depth is None:
-        raise ValueError("measurements carry no visible depth: preprocess with compute_visible_depth=True")
+        raise UnconstrainedMeasurementsError("measurements carry no visible depth: preprocess with "
+                                             "compute_visible_depth=True")
     o, d = pixel_rays(meas.camera_to_world, meas.width, meas.height, meas.fov_rad, meas.fov_axis)
     depth = meas.visible_depth
     ok = np.isfinite(depth)
@@ -254,6 +261,19 @@ def rethreshold(result: BFLidarResult, occupancy_threshold: float) -> BFLidarRes
                    settings={**result.settings, "occupancy_threshold": occupancy_threshold})
 
 
+def test_view_depth_l1(cameras, gt_depths, width: int, height: int, fov_rad: float, fov_axis: str = "x",
+                       stride: int = 1):
+    """score(mesh) for `grid_search`: depth L1 (m) of the mesh on every `stride`-th test view (the paper's way)."""
+    from .evaluate import depth_metrics, render_mesh_depth
+
+    sub = slice(None, None, int(stride))
+
+    def score(mesh):
+        pred = np.stack([render_mesh_depth(mesh, c, width, height, fov_rad, fov_axis) for c in cameras[sub]])
+        return depth_metrics(pred, np.asarray(gt_depths)[sub])["depth_l1_m"]
+    return score
+
+
 def grid_search(meas, score, settings: BFLidarSettings | None = None, occupancy_thresholds=(0.1, 0.2, 0.3, 0.5, 0.7),
                 shadow_thresholds=(None,), device="cpu", progress=False):
     """Pick the thresholds minimising score(mesh) (e.g. depth L1 on test views, as the paper did).
@@ -275,5 +295,5 @@ def grid_search(meas, score, settings: BFLidarSettings | None = None, occupancy_
             if sc < best_score:
                 best, best_score = r, sc
     if best is None:
-        raise ValueError("no threshold gave a surface")
+        raise UnconstrainedMeasurementsError("no threshold gave a surface")
     return best, best_score, table

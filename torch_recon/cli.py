@@ -2,7 +2,8 @@
 
 A command module exposes ``register(subparsers)``, which adds its parser and sets
 ``func`` (taking the parsed args, returning an exit code). Errors the user can fix
-(bad dataset, bad settings) print one clear line and exit 2, never a traceback.
+(`contract.errors.PlatolidarError`: bad dataset, bad settings; and `OSError`) print one
+clear line and exit 2; anything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import sys
 
 #: (module, what it provides) in the order shown by --help
 COMMAND_MODULES = (
+    "torch_recon.commands.simulate",
     "torch_recon.commands.preprocess",
     "torch_recon.commands.baseline",
     "torch_recon.commands.fit",
@@ -22,8 +24,9 @@ COMMAND_MODULES = (
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m torch_recon",
-                                description="Two-bounce lidar reconstruction (PlatoNeRF method), torch, CPU or CUDA.")
+    p = argparse.ArgumentParser(prog="platolidar",
+                                description="Single-view two-bounce lidar (PlatoNeRF): simulate a scene, preprocess, "
+                                            "reconstruct (fit, baseline), evaluate, convert datasets.")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMAND_MODULES:
         try:
@@ -37,14 +40,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    from .contract.dataset import DatasetError
+    from .contract.errors import run_command
 
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["simulate"]:
+        # everything after 'simulate' belongs to pipeline/simulate.py (its own parser and error handling)
+        from .commands.simulate import main as simulate_main
+        return simulate_main(argv[1:])
     args = build_parser().parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except (DatasetError, ValueError, FileNotFoundError, FileExistsError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+    return run_command(args.func, args)

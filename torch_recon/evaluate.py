@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from .contract.analytic import range_image
+from .contract.errors import EvaluationError, SettingsError
 from .contract.frames import camera_ray_directions
 
 PSNR_MSE_FLOOR = 1e-10
@@ -41,6 +42,14 @@ PSNR_MSE_FLOOR = 1e-10
 
 @dataclass
 class EvalSettings:
+    SETTINGS_META = {"fscore_threshold_m": {"flags": ("--fscore-threshold",), "unit": "m",
+                                            "help": "F-score distance threshold"},
+                     "n_surface_samples": {"flags": ("--samples",), "help": "surface samples for Chamfer/F-score",
+                                           "range": (1, None)},
+                     "miss_depth": {"choices": ("zero", "max"),
+                                    "help": "depth a reconstruction ray that hits nothing counts as"},
+                     "error_images": {"help": "write every n-th view's error PNG (0: none)", "range": (0, None)}}
+
     fscore_threshold_m: float = 0.05
     n_surface_samples: int = 100_000
     miss_depth: str = "zero"          # 'zero' | 'max' (see module doc)
@@ -57,11 +66,11 @@ class EvalSettings:
 
     def validate(self):
         if self.miss_depth not in ("zero", "max"):
-            raise ValueError(f"miss_depth must be 'zero' or 'max', got {self.miss_depth!r}")
+            raise SettingsError("miss_depth", f"expected 'zero' or 'max', got {self.miss_depth!r}")
         if not self.fscore_threshold_m > 0:
-            raise ValueError(f"fscore_threshold_m must be > 0, got {self.fscore_threshold_m}")
+            raise SettingsError("fscore_threshold_m", f"expected a length > 0 (m), got {self.fscore_threshold_m}")
         if self.n_surface_samples < 1:
-            raise ValueError("n_surface_samples must be >= 1")
+            raise SettingsError("n_surface_samples", "expected an integer >= 1")
 
 
 # ---------------------------------------------------------------- rendering
@@ -117,15 +126,15 @@ def depth_metrics(pred, gt, miss_depth: str = "zero") -> dict:
     pred = np.asarray(pred, np.float64)
     gt = np.asarray(gt, np.float64)
     if pred.shape != gt.shape:
-        raise ValueError(f"predicted depth {pred.shape} and ground truth {gt.shape} differ in shape")
+        raise EvaluationError(f"predicted depth {pred.shape} and ground truth {gt.shape} differ in shape")
     if pred.ndim == 2:
         pred, gt = pred[None], gt[None]
     valid = np.isfinite(gt)
     if not valid.any():
-        raise ValueError("every ground-truth pixel is a miss (inf): nothing to evaluate")
+        raise EvaluationError("every ground-truth pixel is a miss (inf): nothing to evaluate")
     max_gt = float(gt[valid].max())
     if max_gt <= 0:
-        raise ValueError("ground-truth depths are all zero")
+        raise EvaluationError("ground-truth depths are all zero")
     miss = ~np.isfinite(pred)
     filled = np.where(miss, 0.0 if miss_depth == "zero" else max_gt, pred)
     err = np.where(valid, filled - gt, 0.0)
@@ -201,7 +210,7 @@ def surface_metrics(pred_mesh, gt_mesh, threshold_m=0.05, n_samples=100_000, see
     p, pf = _sample_surface(pred_mesh, n_samples, seed, crop_min, crop_max)
     g, gf = _sample_surface(gt_mesh, n_samples, seed + 1, crop_min, crop_max)
     if len(g) == 0:
-        raise ValueError("the ground-truth mesh has no surface inside the crop box")
+        raise EvaluationError("the ground-truth mesh has no surface inside the crop box")
     if len(p) == 0:
         return {"chamfer_m": None, "fscore": 0.0, "precision": 0.0, "recall": 0.0,
                 "fscore_threshold_m": threshold_m, "note": "no reconstruction surface inside the crop box"}

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .contract.errors import MeasurementsError
+
 MEASUREMENTS_VERSION = 1
 
 
@@ -92,7 +94,8 @@ class Measurements:
     def load(cls, path) -> "Measurements":
         z = np.load(path, allow_pickle=False)
         if int(z["version"]) != MEASUREMENTS_VERSION:
-            raise ValueError(f"{path}: measurements version {int(z['version'])}, expected {MEASUREMENTS_VERSION}")
+            raise MeasurementsError(f"{path}: measurements version {int(z['version'])}, "
+                                    f"expected {MEASUREMENTS_VERSION}")
         fov, bw, thr = (float(v) for v in z["meta_f"])
         w, h = (int(v) for v in z["meta_i"])
         spots = []

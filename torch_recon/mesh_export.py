@@ -29,13 +29,15 @@ from pathlib import Path
 
 import numpy as np
 
+from .contract.errors import PlatolidarError
+
 #: Blender world (Z-up) -> Y-up file coordinates (glTF / OBJ default import): (x, y, z) -> (x, z, -y)
 YUP_FROM_BLENDER = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 Y_UP_SUFFIXES = (".glb", ".gltf", ".obj")
 SUPPORTED_SUFFIXES = (".ply", ".glb", ".gltf", ".obj")
 
 
-class MeshExportError(ValueError):
+class MeshExportError(PlatolidarError, ValueError):
     """The volume or settings cannot give a mesh; says why."""
 
 

@@ -37,10 +37,11 @@ import numpy as np
 
 from .contract.dataset.transient import Transient
 from .contract.frames import camera_ray_directions, focal_length_px
+from .contract.errors import PlatolidarError
 from .measurements import Measurements, SpotMeasurement
 
 
-class PreprocessError(ValueError):
+class PreprocessError(PlatolidarError, ValueError):
     """Input the preprocessing cannot use; the message names the spot and what was expected."""
 
 
@@ -56,6 +57,10 @@ class PreprocessSettings:
     min_first_bounce_snr: float = 5.0  # first-bounce peak must exceed this x the pixel's median (+ floor)
     chunk_elements: int = 1 << 24      # bins processed per chunk (memory bound)
     compute_visible_depth: bool = True
+
+    SETTINGS_META = {"refine": {"choices": ("lut", "gaussian", "parabola", "none")},
+                     "background": {"choices": ("none", "median")}, "shadow_threshold": {"range": (0.0, 1.0)},
+                     "gate_max_m": {"unit": "m"}}
 
     def validate(self):
         if not 0.0 <= self.shadow_threshold <= 1.0:

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .contract.errors import MeasurementsError
+
 
 @dataclass
 class VisibleDepth:
@@ -95,7 +97,7 @@ def visible_points(meas, depth=None, min_confidence: float = 0.0) -> np.ndarray:
     from .contract.frames import pixel_rays
     depth = meas.visible_depth if depth is None else depth
     if depth is None:
-        raise ValueError("measurements carry no visible depth; run preprocess with compute_visible_depth")
+        raise MeasurementsError("measurements carry no visible depth; run preprocess with compute_visible_depth")
     o, d = pixel_rays(meas.camera_to_world, meas.width, meas.height, meas.fov_rad, meas.fov_axis)
     ok = np.isfinite(depth)
     if meas.visible_confidence is not None:

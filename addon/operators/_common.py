@@ -6,10 +6,12 @@ import os
 
 import bpy
 
+from torch_recon.contract.errors import PlatolidarError
+
 from ..preferences import get_preferences
 
 
-class UserError(RuntimeError):
+class UserError(PlatolidarError, RuntimeError):
     """A state the user can fix; operators report it and return CANCELLED."""
 
 

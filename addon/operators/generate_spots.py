@@ -3,7 +3,7 @@
 import bpy
 from bpy.props import BoolProperty
 
-from ..spot_geometry import SpotError, add_spot, random_candidates, select_diverse
+from ..spot_geometry import SpotError, add_spot, generate_spots
 from ._common import has_settings
 
 
@@ -27,22 +27,21 @@ class PLATOLIDAR_OT_generate_spots(bpy.types.Operator):
             self.report({"ERROR"}, f"Cannot keep {s.random_keep} of {s.random_candidates} candidates")
             return {"CANCELLED"}
         try:
-            cands, normals = random_candidates(scene, context.evaluated_depsgraph_get(), s.random_candidates,
-                                               s.seed)
+            kept, found = generate_spots(scene, context.evaluated_depsgraph_get(), s.random_candidates,
+                                         s.random_keep, s.seed)
         except SpotError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        if not cands:
+        if not kept:
             self.report({"ERROR"}, "No surface in the camera's view that the laser can reach")
             return {"CANCELLED"}
-        keep = select_diverse(cands, normals, s.random_keep, s.seed)
         if self.replace:
             s.spots.clear()
-        for i in keep:
-            add_spot(scene, cands[i])
-        msg = f"Kept {len(keep)} of {len(cands)} candidate spots (seed {s.seed})"
-        if len(cands) < s.random_candidates:
-            self.report({"WARNING"}, msg + f"; only {len(cands)} of {s.random_candidates} candidates hit a "
+        for p in kept:
+            add_spot(scene, p)
+        msg = f"Kept {len(kept)} of {found} candidate spots (seed {s.seed})"
+        if found < s.random_candidates:
+            self.report({"WARNING"}, msg + f"; only {found} of {s.random_candidates} candidates hit a "
                                            "surface the laser reaches")
         else:
             self.report({"INFO"}, msg)

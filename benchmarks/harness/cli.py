@@ -12,12 +12,16 @@ from pathlib import Path
 
 from benchmarks.harness import report
 from benchmarks.harness.context import REPO_ROOT, RESULTS_DIR, Context
+
+QUICK_DIR = RESULTS_DIR / "quick"
 from benchmarks.harness.suite import SettingsError, all_suites
 
 
-def run_suite(suite, quick: bool, overrides=(), results_dir: Path = RESULTS_DIR, data_dir: Path | None = None,
+def run_suite(suite, quick: bool, overrides=(), results_dir: Path | None = None, data_dir: Path | None = None,
               log=None) -> Path:
-    """Run one suite, check its rows, write results/<name>.json and .png; the JSON's path."""
+    """Run one suite, check its rows, write results/<name>.json and .png (quick runs: results/quick/, which
+    git ignores, so a smoke run never replaces the measured figures README shows); the JSON's path."""
+    results_dir = results_dir or (QUICK_DIR if quick else RESULTS_DIR)
     log = log or (lambda msg: print(msg, flush=True))
     settings = suite.settings(quick, overrides)
     machine = report.machine_info()
@@ -75,7 +79,7 @@ def main(argv=None) -> int:
     a = sub.add_parser("all", help="run every suite in turn (one failing does not stop the others)")
     a.add_argument("--quick", action="store_true")
     a.add_argument("--skip", nargs="*", default=[], metavar="NAME")
-    sub.add_parser("readme", help="regenerate README's tables from benchmarks/results/*.json")
+    sub.add_parser("readme", help="regenerate the marked tables of README.md and docs/*.md from benchmarks/results/*.json")
     args = ap.parse_args(argv)
     suites = all_suites()
     if args.cmd == "list":
@@ -84,8 +88,10 @@ def main(argv=None) -> int:
             print(f"{name:{width}s}  {s.description.splitlines()[0]}")
         return 0
     if args.cmd == "readme":
-        done = readme(suites=suites)
-        print(f"README tables regenerated: {', '.join(done) or 'none'}")
+        for path in [REPO_ROOT / "README.md", *sorted((REPO_ROOT / "docs").glob("*.md"))]:
+            done = readme(path, suites=suites)
+            if done:
+                print(f"{path.relative_to(REPO_ROOT)}: tables regenerated: {', '.join(done)}")
         return 0
     if args.cmd == "run":
         if args.name not in suites:

@@ -9,28 +9,32 @@
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
 import resource
 import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from benchmarks.harness import datasets
+
 REPO_ROOT = Path(__file__).resolve().parents[2]
 RESULTS_DIR = REPO_ROOT / "benchmarks" / "results"
 DATA_DIR = RESULTS_DIR / "data"          # gitignored: cached datasets and work folders
-SIMULATE = "pipeline/simulate.py"
-CACHE_STAMP = "bench_cache.json"
 
 
 class CliError(RuntimeError):
-    """An entry point run by a benchmark exited non-zero or ran past its time limit."""
+    """An entry point run by a benchmark exited non-zero (`returncode`, `last_line` of its output) or ran
+    past its time limit (returncode None)."""
+
+    def __init__(self, message: str, returncode: int | None = None, last_line: str = ""):
+        super().__init__(message)
+        self.returncode, self.last_line = returncode, last_line
 
 
 @dataclass
@@ -120,9 +124,12 @@ def run_cli(args, timeout: float | None = None, check: bool = True, cwd=REPO_ROO
         p = subprocess.Popen(argv, cwd=cwd, stdin=stdin, stdout=out, stderr=err, env=env, start_new_session=True)
         try:
             status, usage = _wait(p.pid, timeout)
-        except (TimeoutError, KeyboardInterrupt):
-            os.killpg(p.pid, signal.SIGKILL)
+        except (TimeoutError, KeyboardInterrupt) as exc:
+            os.killpg(p.pid, signal.SIGKILL)        # the whole process group: no orphaned workers
             os.wait4(p.pid, 0)
+            p.returncode = -signal.SIGKILL
+            if isinstance(exc, TimeoutError):
+                raise CliError(f"{' '.join(argv)}: ran past its {timeout:g} s limit (killed)") from None
             raise
         finally:
             run.wall_s = time.perf_counter() - t0
@@ -133,12 +140,9 @@ def run_cli(args, timeout: float | None = None, check: bool = True, cwd=REPO_ROO
     run.peak_rss_mb = _kib_to_mb(usage.ru_maxrss)
     if check and run.returncode != 0:
         tail = (run.stderr.strip() or run.stdout.strip())[-2000:]
-        raise CliError(f"{' '.join(args_str(args))} exited {run.returncode}:\n{tail}")
+        raise CliError(f"{' '.join(argv)} exited {run.returncode}:\n{tail}", run.returncode,
+                       tail.splitlines()[-1] if tail else "")
     return run
-
-
-def args_str(args) -> list[str]:
-    return [str(a) for a in args]
 
 
 def _wait(pid, timeout):
@@ -149,28 +153,13 @@ def _wait(pid, timeout):
         if done:
             return status, usage
         if deadline is not None and time.monotonic() > deadline:
-            raise TimeoutError(f"ran past its {timeout:g} s limit")
+            raise TimeoutError
         time.sleep(delay)
         delay = min(delay * 2, 0.2)
 
 
 def _temp_text():
-    import tempfile
     return tempfile.TemporaryFile("w+", encoding="utf-8", errors="replace")
-
-
-def simulate_args(example: str, resolution: int, spots: int, options: dict) -> list[str]:
-    """pipeline/simulate.py arguments: option names with '_' -> '-'; True -> a bare flag; False/None
-    -> left out (the simulator's default)."""
-    args = ["--example", example, "--resolution", str(int(resolution)), "--spots", str(int(spots))]
-    for key in sorted(options):
-        value = options[key]
-        flag = "--" + key.replace("_", "-")
-        if value is True:
-            args.append(flag)
-        elif value is not None and value is not False:
-            args += [flag, str(value)]
-    return args
 
 
 class Context:
@@ -191,47 +180,10 @@ class Context:
     timed = staticmethod(timed)
 
     def run_cli(self, args, timeout: float | None = None, check: bool = True) -> CliRun:
-        self.log("  $ " + " ".join(args_str(args)))
+        self.log("  $ " + " ".join(map(str, args)))
         return run_cli(args, timeout=timeout, check=check)
 
     def dataset(self, example: str, resolution: int, spots: int = 16, **simulate_options) -> Path:
         """A simulated dataset of the example scene, cached under data_dir by a hash of the settings;
-        a cached one is validated before reuse (manifest, every file present with its recorded size)."""
-        args = simulate_args(example, resolution, spots, simulate_options)
-        key = hashlib.sha256(json.dumps(args).encode()).hexdigest()[:10]
-        out = self.data_dir / f"{example}-{int(resolution)}-{key}"
-        problem = _cache_problem(out, args)
-        if problem is None:
-            return out
-        self.log(f"  simulating {' '.join(args)} -> {out.name} ({problem})")
-        run = self.run_cli(["python", SIMULATE, *args, "--out", out])
-        stamp = {"simulate_args": args, "simulate_wall_s": run.wall_s, "simulate_cpu_s": run.cpu_s,
-                 "simulate_peak_rss_mb": run.peak_rss_mb, "files": _file_sizes(out)}
-        (out / CACHE_STAMP).write_text(json.dumps(stamp, indent=1))
-        return out
-
-
-def _file_sizes(root: Path) -> dict:
-    return {str(p.relative_to(root)): p.stat().st_size for p in sorted(root.rglob("*"))
-            if p.is_file() and p.name != CACHE_STAMP}
-
-
-def _cache_problem(out: Path, args) -> str | None:
-    """Why a cached dataset cannot be reused (None: it can)."""
-    stamp = out / CACHE_STAMP
-    if not stamp.is_file():
-        return "not cached"
-    try:
-        recorded = json.loads(stamp.read_text())
-    except (OSError, json.JSONDecodeError):
-        return "unreadable cache stamp"
-    if recorded.get("simulate_args") != args:
-        return "cached with other settings"
-    if _file_sizes(out) != recorded.get("files"):
-        return "cached files changed or missing"
-    try:
-        from torch_recon.contract.dataset import load_dataset
-        load_dataset(out)
-    except Exception as exc:      # noqa: BLE001 - any failure to open means: simulate again
-        return f"cached dataset invalid: {exc}"
-    return None
+        a cached one is validated before reuse (datasets.cached_dataset)."""
+        return datasets.cached_dataset(self, example, resolution, spots, simulate_options)

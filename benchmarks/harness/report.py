@@ -137,30 +137,31 @@ def write_json(path: Path, obj) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1, allow_nan=False, default=_jsonable) + "\n")
+    tmp.write_text(json.dumps(obj, indent=1, default=_jsonable) + "\n")     # rows: NaN refused by check_rows
     os.replace(tmp, path)
     return path
 
 
 def plot_rows(rows, path: Path, title: str = "", y: str | None = None, x: str = "wall_s", kind: str = "scatter",
-              label: str = "method") -> Path:
+              label="method") -> Path:
     """The one plot: each row's error `y` (default its first error field) against time `x` (a scatter, one
-    colour per `label` value), or as bars per row (kind='bar')."""
+    colour per label: the row's `label` field, or `label(row)` when callable), or as bars per row (kind='bar')."""
+    name_of = label if callable(label) else (lambda r: str(r.get(label)))
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     y = y or (error_fields(rows) or [x])[0]
     fig, ax = plt.subplots(figsize=(6.5, 4))
     if kind == "bar":
-        names = [f"{r.get(label)}\n{r.get('scene', '')}" for r in rows]
+        names = [f"{name_of(r)}\n{r.get('scene', '')}" for r in rows]
         ax.bar(range(len(rows)), [_num(r.get(y)) for r in rows])
         ax.set_xticks(range(len(rows)), names, fontsize=7, rotation=30, ha="right")
     else:
-        for name in dict.fromkeys(str(r.get(label)) for r in rows):
-            rs = [r for r in rows if str(r.get(label)) == name]
+        for name in dict.fromkeys(map(name_of, rows)):
+            rs = [r for r in rows if name_of(r) == name]
             ax.scatter([_num(r.get(x)) for r in rs], [_num(r.get(y)) for r in rs], label=name)
         ax.set_xlabel(x)
-        if len({str(r.get(label)) for r in rows}) <= 12:
+        if len(set(map(name_of, rows))) <= 12:
             ax.legend(fontsize=7)
     ax.set_ylabel(y)
     ax.set_title(title, fontsize=9)
@@ -179,22 +180,25 @@ def _num(v):
 
 # -- README tables ------------------------------------------------------------------------------
 
-def fmt(v) -> str:
-    """A table cell: floats with 3-4 significant digits, None as '-'."""
+def fmt(v, spec: str | None = None) -> str:
+    """A table cell: `spec` (a format spec such as '.1f') for numbers, else floats with 4 decimals below 1
+    and 2 above; None as '-'."""
     if v is None:
         return "-"
-    if isinstance(v, bool) or not isinstance(v, float):
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or (isinstance(v, float) and not math.isfinite(v)):
         return str(v)
-    if not math.isfinite(v):
+    if spec:
+        return format(v, spec)
+    if not isinstance(v, float):
         return str(v)
-    a = abs(v)
-    return f"{v:.4f}" if a < 1 else f"{v:.2f}" if a < 100 else f"{v:.0f}"
+    return f"{v:.4f}" if abs(v) < 1 else f"{v:.2f}" if abs(v) < 1000 else f"{v:.0f}"
 
 
 def markdown_table(rows, columns) -> str:
-    """`columns`: [(field, header), ...]."""
-    lines = ["| " + " | ".join(h for _, h in columns) + " |", "|" + "---|" * len(columns)]
-    lines += ["| " + " | ".join(fmt(r.get(k)) for k, _ in columns) + " |" for r in rows]
+    """`columns`: [(field, header) or (field, header, format spec), ...]."""
+    cols = [(c[0], c[1], c[2] if len(c) > 2 else None) for c in columns]
+    lines = ["| " + " | ".join(h for _, h, _ in cols) + " |", "|" + "---|" * len(cols)]
+    lines += ["| " + " | ".join(fmt(r.get(k), spec) for k, _, spec in cols) + " |" for r in rows]
     return "\n".join(lines)
 
 

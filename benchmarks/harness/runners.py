@@ -1,5 +1,6 @@
 """The one way benchmarks run a reconstruction and score it: the real entry points as subprocesses.
 
+    p = preprocess(ctx, dataset, "meas", shadow_threshold=0.25)   # torch_recon preprocess -> .npz
     m = fit(ctx, dataset, "fit128", steps=200)          # torch_recon fit, then evaluate of its mesh
     b = baseline(ctx, dataset, "bflidar128")            # torch_recon baseline, then evaluate
     e = evaluate(ctx, mesh, dataset, "eval")            # torch_recon evaluate alone
@@ -18,6 +19,7 @@ import shutil
 from pathlib import Path
 
 from benchmarks.harness.context import CliError
+from benchmarks.harness.report import fmt
 
 RECON = ["python", "-m", "torch_recon"]
 #: the evaluate report's fields a benchmark row carries
@@ -29,6 +31,20 @@ class Refused(RuntimeError):
     """The entry point refused its input (exit status 2): the message is its one line."""
 
 
+TIMES = ("wall_s", "cpu_s", "peak_rss_mb")
+
+
+def row(method: str, scene: str, result: dict, fields=METRICS, **extra) -> dict:
+    """A results row: method, scene, the result's times, then `extra`, then the result's `fields`."""
+    return {"method": method, "scene": scene, **{k: result.get(k) for k in TIMES}, **extra,
+            **{k: result.get(k) for k in fields}}
+
+
+def refused_row(method: str, scene: str, exc: Exception, **extra) -> dict:
+    """The row of a run the entry point refused: no times, no metrics, its message."""
+    return {"method": method, "scene": scene, **dict.fromkeys(TIMES), **extra, "refused": str(exc)}
+
+
 def _fresh(path: Path) -> Path:
     if path.exists():
         shutil.rmtree(path)
@@ -36,18 +52,36 @@ def _fresh(path: Path) -> Path:
 
 
 def _run(ctx, args, timeout):
-    run = ctx.run_cli(args, timeout=timeout, check=False)
-    if run.returncode == 2:
-        lines = (run.stderr.strip() or run.stdout.strip()).splitlines()
-        raise Refused(lines[-1] if lines else "refused (exit 2)")
-    if run.returncode != 0:
-        raise CliError(f"{' '.join(map(str, args))} exited {run.returncode}:\n{run.stderr.strip()[-2000:]}")
-    return run
+    """ctx.run_cli; exit status 2 (the project's 'bad input': one line) raises Refused."""
+    try:
+        return ctx.run_cli(args, timeout=timeout)
+    except CliError as exc:
+        if exc.returncode == 2:
+            raise Refused(exc.last_line or "refused (exit 2)") from None
+        raise
 
 
 def _mesh_in(folder: Path) -> Path | None:
     """The mesh an entry point wrote into `folder` (.ply preferred: the fastest to read)."""
     return next((folder / f"mesh{ext}" for ext in (".ply", ".glb", ".obj") if (folder / f"mesh{ext}").is_file()), None)
+
+
+def preprocess(ctx, dataset, out, timeout=None, **settings) -> dict:
+    """`torch_recon preprocess DATASET --out OUT.npz --KEY VALUE ...` (PreprocessSettings by their flags,
+    e.g. shadow_threshold=0.25, background="median"): the .npz path ("measurements") and the times."""
+    npz = ctx.work_dir / f"{out}.npz"
+    npz.unlink(missing_ok=True)
+    cmd = [*RECON, "preprocess", dataset, "--out", npz]
+    for key, value in settings.items():
+        cmd += [f"--{key.replace('_', '-')}", value]
+    run = _run(ctx, cmd, timeout)
+    return {**run.times(), "measurements": npz}
+
+
+def combined(*timings: dict) -> dict:
+    """Times of stages run one after the other: wall and CPU add up, peak memory is the largest."""
+    return {"wall_s": sum(t["wall_s"] for t in timings), "cpu_s": sum(t["cpu_s"] for t in timings),
+            "peak_rss_mb": max(t["peak_rss_mb"] for t in timings)}
 
 
 def evaluate(ctx, mesh, dataset, out, timeout=None, args=()) -> dict:
@@ -76,6 +110,7 @@ def fit(ctx, source, out, dataset=None, mode="fast", steps=None, max_seconds=Non
     if mesh is None:        # an empty field exports no mesh: every test-view ray misses
         raise Refused(f"fit wrote no mesh ({report.get('mesh_error', 'no surface at the mesh level')})")
     metrics = evaluate(ctx, mesh, dataset or source, f"{out}-eval", timeout=timeout)
+    _log_result(ctx, out, run, metrics, f"{report.get('steps')} steps, {report.get('stopped')}")
     return {**run.times(), "steps": report.get("steps"), "stopped": report.get("stopped"),
             "train_s": report.get("train_seconds"), **metrics}
 
@@ -89,4 +124,10 @@ def baseline(ctx, source, out, measurements=None, voxels=None, grid_search=False
     cmd += ["--grid-search"] if grid_search else []
     run = _run(ctx, [*cmd, *args], timeout)
     metrics = evaluate(ctx, _mesh_in(out_dir), source, f"{out}-eval", timeout=timeout)
+    _log_result(ctx, out, run, metrics, "BF Lidar")
     return {**run.times(), **metrics}
+
+
+def _log_result(ctx, tag, run, metrics, note):
+    ctx.log(f"  -> {tag}: {run.wall_s:.1f} s ({note}), depth L1 {fmt(metrics['depth_l1_m'], '.4f')} m, "
+            f"PSNR {fmt(metrics['depth_psnr_db'], '.2f')} dB")

@@ -9,9 +9,10 @@ from dataclasses import dataclass
 
 import pytest
 
-from benchmarks.harness import Suite, report
+from benchmarks.harness import CliError, Suite, report
 from benchmarks.harness.cli import readme, run_suite
-from benchmarks.harness.context import Context, _cache_problem, run_cli, simulate_args
+from benchmarks.harness.context import run_cli
+from benchmarks.harness.datasets import cache_problem, integrate_bins, simulate_args
 from benchmarks.harness.suite import SettingsError, all_suites
 
 
@@ -95,7 +96,7 @@ def test_run_cli_times_a_real_subprocess(tmp_path):
     assert r.returncode == 0 and r.wall_s >= 0.3 and r.cpu_s >= 0.25 and r.peak_rss_mb > 200
     bad = run_cli(["python", "-c", "import sys; print('boom', file=sys.stderr); sys.exit(3)"], check=False)
     assert bad.returncode == 3 and "boom" in bad.stderr
-    with pytest.raises(TimeoutError):
+    with pytest.raises(CliError, match="limit"):
         run_cli(["python", "-c", "import time; time.sleep(30)"], timeout=0.5)
 
 
@@ -103,14 +104,14 @@ def test_dataset_cache_revalidates(tmp_path):
     args = simulate_args("cave-chair", 8, 4, {"poisson": True, "photons": 100, "no_gt": False})
     assert args == ["--example", "cave-chair", "--resolution", "8", "--spots", "4", "--photons", "100", "--poisson"]
     out = tmp_path / "ds"
-    assert _cache_problem(out, args) == "not cached"
+    assert cache_problem(out, args) == "not cached"
     out.mkdir()
     (out / "t.exr").write_bytes(b"12345")
-    (out / "bench_cache.json").write_text(json.dumps({"simulate_args": args, "files": {"t.exr": 5}}))
-    assert "invalid" in _cache_problem(out, args)           # no manifest: not a dataset
-    assert _cache_problem(out, args[:-1]) == "cached with other settings"
+    (out / "bench_cache.json").write_text(json.dumps({"args": args, "files": {"t.exr": 5}}))
+    assert "invalid" in cache_problem(out, args)           # no manifest: not a dataset
+    assert cache_problem(out, args[:-1]) == "cached with other settings"
     (out / "t.exr").write_bytes(b"12")                       # truncated
-    assert _cache_problem(out, args) == "cached files changed or missing"
+    assert cache_problem(out, args) == "cached files changed or missing"
 
 
 def test_every_suite_declares_dataclass_settings():
@@ -126,3 +127,34 @@ def test_cli_list_and_bad_set(capsys):
     assert main(["list"]) == 0
     assert main(["run", "no-such-suite"]) == 2
     assert "no suite" in capsys.readouterr().err
+
+
+def test_integrate_bins_sums_adjacent_bins(tmp_path):
+    """The temporal ablation's bin integration: coarse bin j = sum of fine bins f*j .. f*j+f-1; GT carried over."""
+    import numpy as np
+    from conftest import make_synthetic_dataset
+    from torch_recon.contract.dataset import load_dataset
+
+    make_synthetic_dataset(tmp_path / "src", bins=40, window_bins=8, spots=2)
+    a, b = load_dataset(tmp_path / "src"), load_dataset(integrate_bins(tmp_path / "src", tmp_path / "dst", 4))
+    assert (b.sensor.bins, b.sensor.bin_width_ps) == (10, 4 * a.sensor.bin_width_ps)
+    assert abs(b.sensor.bin_width_m - 4 * a.sensor.bin_width_m) < 1e-9
+    for s in a.manifest.spots:
+        fine, coarse = a.read_transient(s.id).dense(), b.read_transient(s.id).dense()
+        np.testing.assert_allclose(fine.reshape(6, 5, 10, 4).sum(-1), coarse, rtol=1e-5)
+    np.testing.assert_array_equal(a.test_views()[2], b.test_views()[2])
+
+
+def test_runner_turns_exit_2_into_refused_and_other_failures_into_cli_error(tmp_path):
+    from benchmarks.harness import Refused, runners
+    from benchmarks.harness.context import Context
+    ctx = Context("fake", quick=True, data_dir=tmp_path, log=lambda m: None)
+    assert ctx.work_dir.is_dir()
+    with pytest.raises(Refused, match="^error: --steps: expected"):
+        runners._run(ctx, ["python", "-c", "import sys; print('error: --steps: expected >= 0', file=sys.stderr); "
+                                           "sys.exit(2)"], None)
+    with pytest.raises(CliError) as err:
+        runners._run(ctx, ["python", "-c", "raise SystemExit(1)"], None)
+    assert err.value.returncode == 1
+    assert runners.combined({"wall_s": 1, "cpu_s": 2, "peak_rss_mb": 30}, {"wall_s": 3, "cpu_s": 1, "peak_rss_mb": 20}) \
+        == {"wall_s": 4, "cpu_s": 3, "peak_rss_mb": 30}

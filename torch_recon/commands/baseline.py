@@ -2,22 +2,44 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
+from ..bflidar import BFLidarSettings
+from ..preprocess import PreprocessSettings
+
+
+@dataclass
+class BaselineCommand:
+    """Settings of `baseline`: preprocessing, then BF Lidar carving."""
+
+    preprocess: PreprocessSettings = field(default_factory=PreprocessSettings)
+    bflidar: BFLidarSettings = field(default_factory=BFLidarSettings)
+    device: str = "cpu"               # torch device: auto, cpu, cuda, cuda:N
+    threads: int | None = None        # CPU threads for torch (None: torch's choice)
+    grid_search: bool = False         # pick shadow/occupancy thresholds by depth L1 on the test views (needs GT)
+    evaluate: bool = False            # also write report.json for the mesh
+
+    SETTINGS_META = {"threads": {"range": (1, None)}}
+    GRID_SHADOW_THRESHOLDS = (0.05, 0.15, 0.25, 0.5)
+
+    def validate(self):
+        from ..contract.settings import check_device_name
+
+        check_device_name(self.device)
+
 
 def register(sub) -> None:
-    from .preprocess import add_device_arg, add_preprocess_args
+    from ..contract.settings import add_arguments
+    from .preprocess import DEVICE_FLAGS, PREPROCESS_FLAGS
+
     p = sub.add_parser("baseline", help="Bounce Flash Lidar baseline -> mesh",
                        description="Preprocess the dataset (or reuse --measurements), carve, mesh; optionally "
                                    "grid-search the thresholds on the dataset's test views as the paper did.")
     p.add_argument("dataset", help="dataset directory")
     p.add_argument("--out", required=True, help="output directory (mesh.glb/.ply/.obj, mesh.mesh.json)")
     p.add_argument("--measurements", default=None, help="reuse a preprocess .npz instead of preprocessing")
-    p.add_argument("--voxels", type=int, default=128, help="voxels along the longest axis (default 128)")
-    p.add_argument("--occupancy-threshold", type=float, default=0.3, help="occupancy probability threshold")
-    p.add_argument("--grid-search", action="store_true",
-                   help="pick shadow/occupancy thresholds by depth L1 on the test views (uses ground truth)")
-    p.add_argument("--evaluate", action="store_true", help="also write report.json for the mesh")
-    add_preprocess_args(p)
-    add_device_arg(p)
+    add_arguments(p, BaselineCommand, ("bflidar.voxels", "bflidar.occupancy_threshold", "grid_search", "evaluate")
+                  + PREPROCESS_FLAGS + DEVICE_FLAGS)
     p.set_defaults(func=run)
 
 
@@ -27,15 +49,18 @@ def run(args) -> int:
 
     import numpy as np
 
-    from ..bflidar import BFLidarSettings, carve, grid_search
-    from ..contract.dataset import load_dataset
-    from ..evaluate import EvalSettings, depth_metrics, evaluate, render_mesh_depth
+    from ..bflidar import carve, grid_search, test_view_depth_l1
+    from ..contract.dataset import DatasetError, load_dataset
+    from ..contract.settings import from_args
+    from ..device import resolve_device
+    from ..evaluate import EvalSettings, evaluate
     from ..measurements import Measurements
     from ..mesh_export import export_mesh
     from ..preprocess import preprocess_dataset
-    from .preprocess import resolve_device, settings_from_args, summarize
+    from .preprocess import summarize
 
-    device = resolve_device(args.device, args.threads)
+    cmd = from_args(BaselineCommand, args)
+    device = resolve_device(cmd.device, cmd.threads)
     ds = load_dataset(args.dataset)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -43,24 +68,19 @@ def run(args) -> int:
     if args.measurements:
         meas = Measurements.load(args.measurements)
     else:
-        meas = preprocess_dataset(ds, settings_from_args(args), device=device, progress=True)
+        meas = preprocess_dataset(ds, cmd.preprocess, device=device, progress=True)
     t_pre = time.perf_counter() - t0
     print(summarize(meas))
-    bs = BFLidarSettings(voxels=args.voxels, occupancy_threshold=args.occupancy_threshold)
+    bs = cmd.bflidar
     t1 = time.perf_counter()
     table = None
-    if args.grid_search:
+    if cmd.grid_search:
         tv = ds.test_views()
         if tv is None:
-            raise ValueError(f"{ds.root}: --grid-search needs ground_truth.test_views")
+            raise DatasetError(str(ds.root), "ground_truth.test_views", "--grid-search needs test views")
         views, cams, gt = tv
-
-        def score(mesh):
-            pred = np.stack([render_mesh_depth(mesh, c, views.width, views.height, views.fov_rad, views.fov_axis)
-                             for c in cams])
-            return depth_metrics(pred, gt)["depth_l1_m"]
-
-        res, best, table = grid_search(meas, score, bs, shadow_thresholds=(0.05, 0.15, 0.25, 0.5),
+        score = test_view_depth_l1(cams, gt, views.width, views.height, views.fov_rad, views.fov_axis)
+        res, best, table = grid_search(meas, score, bs, shadow_thresholds=cmd.GRID_SHADOW_THRESHOLDS,
                                        device=device, progress=True)
         print("grid search (shadow threshold, occupancy threshold, depth L1 m):")
         for st, ot, sc in table:
@@ -76,7 +96,7 @@ def run(args) -> int:
                       extra_formats=(".ply", ".obj"))
     print(f"BF Lidar: preprocess {t_pre:.2f} s, carving {t_carve:.2f} s; mesh {exp.n_faces} faces "
           f"-> {', '.join(str(p) for p in exp.paths)}")
-    if args.evaluate:
+    if cmd.evaluate:
         rep = evaluate(ds, out / "eval", mesh=exp.mesh, settings=EvalSettings(), progress=True,
                        extra={"method": "bflidar"})
         print(f"depth L1 {rep['depth_l1_m']} m, PSNR {rep['depth_psnr_db']} dB, Chamfer {rep['chamfer_m']} m, "

@@ -2,52 +2,40 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 
-def add_device_arg(p) -> None:
-    p.add_argument("--device", default="cpu", help="torch device: cpu, cuda, cuda:1 ... (default cpu)")
-    p.add_argument("--threads", type=int, default=None,
-                   help="CPU threads for torch (default: torch's choice; 1 is faster on a busy machine)")
+from ..preprocess import PreprocessSettings
 
-
-def resolve_device(name: str, threads: int | None = None) -> str:
-    import torch
-    if threads is not None:
-        if threads < 1:
-            raise ValueError(f"--threads must be >= 1, got {threads}")
-        torch.set_num_threads(threads)
-    if name.startswith("cuda") and not torch.cuda.is_available():
-        raise ValueError(f"--device {name}: CUDA is not available in this torch build/machine; use --device cpu")
-    return name
+PREPROCESS_FLAGS = ("preprocess.shadow_threshold", "preprocess.parallel_sin", "preprocess.refine",
+                    "preprocess.background", "preprocess.gate_max_m")
+DEVICE_FLAGS = ("device", "threads")
 
 
-def add_preprocess_args(p) -> None:
-    p.add_argument("--shadow-threshold", type=float, default=0.15,
-                   help="matched-filter confidence below which a pixel is in shadow (paper 0.15)")
-    p.add_argument("--parallel-sin", type=float, default=0.05,
-                   help="exclude pixels within asin(this) of the ray to the laser spot (paper 0.05)")
-    p.add_argument("--refine", choices=("lut", "gaussian", "parabola", "none"), default="lut",
-                   help="sub-bin peak refinement (default lut: pulse-model lookup table)")
-    p.add_argument("--background", choices=("none", "median"), default="none",
-                   help="subtract each pixel's median (ambient) before the matched filter")
-    p.add_argument("--gate-max-m", type=float, default=None, help="ignore returns beyond this optical path (m)")
+@dataclass
+class PreprocessCommand:
+    """Settings of `preprocess` (also the first part of `baseline`)."""
 
+    preprocess: PreprocessSettings = field(default_factory=PreprocessSettings)
+    device: str = "cpu"               # torch device: auto, cpu, cuda, cuda:N
+    threads: int | None = None        # CPU threads for torch (None: torch's choice; 1 is faster on a busy machine)
 
-def settings_from_args(args):
-    from ..preprocess import PreprocessSettings
-    s = PreprocessSettings(shadow_threshold=args.shadow_threshold, parallel_sin=args.parallel_sin,
-                           refine=args.refine, background=args.background, gate_max_m=args.gate_max_m)
-    s.validate()
-    return s
+    SETTINGS_META = {"threads": {"range": (1, None)}}
+
+    def validate(self):
+        from ..contract.settings import check_device_name
+
+        check_device_name(self.device)
 
 
 def register(sub) -> None:
+    from ..contract.settings import add_arguments
+
     p = sub.add_parser("preprocess", help="transients -> measurements (.npz)",
                        description="First bounce, pulse, time gate, matched filter (shadow masks), sub-bin "
                                    "two-bounce paths and the closed-form visible depth, for every enabled spot.")
     p.add_argument("dataset", help="dataset directory (dataset.json)")
     p.add_argument("--out", required=True, help="output .npz")
-    add_preprocess_args(p)
-    add_device_arg(p)
+    add_arguments(p, PreprocessCommand, PREPROCESS_FLAGS + DEVICE_FLAGS)
     p.set_defaults(func=run)
 
 
@@ -71,13 +59,17 @@ def run(args) -> int:
     from pathlib import Path
 
     from ..contract.dataset import load_dataset
+    from ..contract.errors import SettingsError
+    from ..contract.settings import from_args
+    from ..device import resolve_device
     from ..preprocess import preprocess_dataset
 
-    settings = settings_from_args(args)
-    device = resolve_device(args.device, args.threads)
+    cmd = from_args(PreprocessCommand, args)
+    settings = cmd.preprocess
+    device = resolve_device(cmd.device, cmd.threads)
     out = Path(args.out)
     if out.suffix != ".npz":
-        raise ValueError(f"--out {out}: expected a .npz file name")
+        raise SettingsError("out", f"expected a .npz file name, got {out}")
     ds = load_dataset(args.dataset)
     t0 = time.perf_counter()
     meas = preprocess_dataset(ds, settings, device=device, progress=True)

@@ -1,4 +1,6 @@
-"""Laser spot choice: random candidate directions and a diversity heuristic (numpy only).
+"""Laser spot choice, shared by the add-on and the simulator: random candidates and a diversity heuristic.
+
+Numpy only; the ray casts come in as a callable (Blender's scene.ray_cast in pipeline.blender_scene).
 
 The paper illuminates 24 random scene points and keeps 16 "that maximise diversity".
 Its heuristic is not published; this one is greedy farthest-point sampling:
@@ -25,27 +27,68 @@ from .frames import focal_length_px
 NORMAL_WEIGHT = 0.5
 
 
-def random_candidate_directions(n: int, rng: np.random.Generator, sensor, margin: float = 0.05) -> np.ndarray:
-    """n unit laser directions (n, 3) in the world frame, aimed inside the sensor's field of view.
+def random_candidate_pixels(n: int, rng: np.random.Generator, width: int, height: int,
+                            margin: float = 0.05) -> np.ndarray:
+    """(n, 2) random pixel centres (col, row), pixels within `margin` of the image border skipped.
 
-    Image-plane points are drawn uniformly over the image shrunk by `margin` (fraction of the
-    width / height on each side), so each candidate lands on a pixel the sensor sees. The
-    directions leave the sensor centre through those points: exact for a laser co-located with
-    the sensor (the paper's set-up); for an offset laser they aim at the same image points at
-    infinity.
+    Pixel centres (not any image point): the pixel that holds the spot then sees the spot itself,
+    so its first-bounce return is recorded even next to a depth edge.
     """
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
         raise ValueError(f"random_candidates: expected an integer >= 0, got {n!r}")
     if not 0.0 <= margin < 0.5:
         raise ValueError(f"margin: expected a fraction in [0, 0.5), got {margin!r}")
+    c0, r0 = int(margin * width), int(margin * height)
+    cols = rng.integers(c0, max(c0 + 1, width - c0), n)
+    rows = rng.integers(r0, max(r0 + 1, height - r0), n)
+    return np.stack([cols + 0.5, rows + 0.5], axis=1)
+
+
+def pixel_directions(sensor, pixels) -> np.ndarray:
+    """World unit directions (N, 3) from the sensor centre through image points (col, row) in pixels."""
+    px = np.asarray(pixels, np.float64).reshape(-1, 2)
     w, h = sensor.width, sensor.height
     f = focal_length_px(w, h, sensor.fov_rad, sensor.fov_axis)
-    cols = rng.uniform(margin * w, (1.0 - margin) * w, n)
-    rows = rng.uniform(margin * h, (1.0 - margin) * h, n)
-    d_cam = np.stack([(cols - 0.5 * w) / f, -(rows - 0.5 * h) / f, -np.ones(n)], axis=1)  # OpenGL: -Z forward
+    d_cam = np.stack([(px[:, 0] - 0.5 * w) / f, -(px[:, 1] - 0.5 * h) / f, -np.ones(len(px))], axis=1)  # OpenGL
     d_cam /= np.linalg.norm(d_cam, axis=1, keepdims=True)
+    return d_cam @ np.asarray(sensor.camera_to_world, np.float64)[:3, :3].T
+
+
+def random_spot_targets(sensor, cast, n_candidates: int, keep: int, seed: int, margin: float = 0.05,
+                        max_tries_per_spot: int = 20):
+    """The one random-spot recipe: the add-on's "Generate Spots" and the simulator's random spots.
+
+    `cast(origin, direction)` returns the first surface (point (3,), normal (3,)) along a ray, or
+    None; it skips the laser's own object. Candidates are surface points seen through random pixel
+    centres that the laser, aimed at them from `sensor.laser_origin`, really lands on (nothing in
+    between); then `keep` spread-out ones are chosen (`select_diverse_spots`) with the same seeded
+    rng. Returns (points (k, 3), normals (k, 3), n_found) in selection order.
+    """
+    rng = np.random.default_rng(seed)
     c2w = np.asarray(sensor.camera_to_world, np.float64)
-    return d_cam @ c2w[:3, :3].T
+    cam, laser = c2w[:3, 3], np.asarray(sensor.laser_origin, np.float64)
+    points, normals = [], []
+    for _ in range(max(1, int(n_candidates)) * max_tries_per_spot):
+        if len(points) >= n_candidates:
+            break
+        d = pixel_directions(sensor, random_candidate_pixels(1, rng, sensor.width, sensor.height, margin))[0]
+        hit = cast(cam, d)
+        if hit is None:
+            continue
+        p, normal = np.asarray(hit[0], np.float64), np.asarray(hit[1], np.float64)
+        to_p = p - laser
+        if np.linalg.norm(to_p) < 1e-9:
+            continue
+        q = cast(laser, to_p / np.linalg.norm(to_p))
+        # the laser must land where the camera looks (not on an occluder in between)
+        if q is not None and np.linalg.norm(np.asarray(q[0]) - p) <= 1e-3 * np.linalg.norm(p - cam) + 1e-4:
+            points.append(np.asarray(q[0], np.float64))
+            normals.append(normal)
+    if not points:
+        return np.zeros((0, 3)), np.zeros((0, 3)), 0
+    pts, nrm = np.array(points), np.array(normals)
+    idx = select_diverse_spots(pts, nrm, keep, rng)
+    return pts[idx], nrm[idx], len(points)
 
 
 def select_diverse_spots(candidates, normals, keep: int, rng: np.random.Generator) -> np.ndarray:

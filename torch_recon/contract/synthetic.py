@@ -112,7 +112,7 @@ def write_analytic_dataset(out_dir, mesh, sensor: SensorSpec, laser_directions, 
         man = Manifest(sensor=sensor, spots=spots,
                        layout=TransientLayout("windowed" if g < sensor.bins else "dense", g, "float32"),
                        noise=noise, ground_truth=gt,
-                       provenance=Provenance(generator="torch_recon.contract.synthetic (analytic)", generator_version="1",
-                                             seed=seed, scene=scene))
+                       provenance=Provenance(generator="torch_recon.contract.synthetic (analytic)",
+                                             generator_version="1", seed=seed, scene=scene))
         path = w.commit(man)
     return path, parts

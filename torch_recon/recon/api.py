@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from ..contract.frames import pixel_rays
+from ..device import resolve_device
 from ..measurements import Measurements
 from .config import FitConfig
 from .data import build_ray_data
@@ -65,14 +66,6 @@ def render_model_depth(model, camera_to_world, width, height, fov_rad, fov_axis=
     return model.render_depth(t(o), t(d), min_opacity=min_opacity).cpu().numpy().reshape(height, width)
 
 
-def resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise ValueError("device: 'cuda' requested but torch sees no CUDA device")
-    return torch.device(name)
-
-
 def measurements_hash(meas: Measurements) -> str:
     h = hashlib.sha256()
     h.update(np.asarray(meas.camera_to_world, np.float64).tobytes())
@@ -105,16 +98,15 @@ def load_source(source, progress: bool = True):
     return meas, "dataset:" + ds.content_hash()
 
 
-def fit(source, mode: str = "fast", out=None, config: FitConfig | None = None, on_eval=None,
+def fit(source, mode: str | None = None, out=None, config: FitConfig | None = None, on_eval=None,
         export: bool = True, fault_hook=None, stop_after: int | None = None, uv: bool = True) -> FitResult:
     """Fit a density field to two-bounce measurements and (with `out` and `export`) write the mesh."""
     t_start = time.perf_counter()
-    cfg = config or FitConfig(mode=mode)
-    if config is not None and mode != cfg.mode:
+    cfg = config or (FitConfig(mode=mode) if mode else FitConfig())
+    if mode and mode != cfg.mode:
         cfg = FitConfig.from_dict({**cfg.to_dict(), "mode": mode})
-    torch.set_num_threads(max(1, int(cfg.threads)))
     torch.manual_seed(cfg.seed)
-    dev = resolve_device(cfg.device)
+    dev = resolve_device(cfg.device, cfg.threads)
     meas, src_hash = load_source(source, cfg.progress)
     data = build_ray_data(meas).to(dev)     # refuses unusable measurements before anything is written
     out_dir = None

@@ -10,9 +10,14 @@ Two modes share the data, the losses and the evaluation:
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields, is_dataclass
+from dataclasses import asdict, dataclass, field
 
-MODES = ("fast", "platonerf")
+from ..contract import settings
+from ..contract.errors import SettingsError
+from ..contract.methods import DEFAULT_FIT_METHOD, FIT_METHODS, method
+from ..contract.settings import check_device_name
+
+MODES = FIT_METHODS   # the fit methods of the method table (contract/methods.py)
 
 
 @dataclass
@@ -80,9 +85,9 @@ class PlatoNeRFConfig:
 
 @dataclass
 class FitConfig:
-    mode: str = "fast"
+    mode: str = DEFAULT_FIT_METHOD
     seed: int = 0
-    device: str = "auto"              # 'auto' (CUDA when present), 'cpu', 'cuda'
+    device: str = "auto"              # 'auto' (CUDA when present), 'cpu', 'cuda', 'cuda:N'
     threads: int = 2                  # torch CPU threads
     max_seconds: float | None = None  # wall-clock budget for the optimisation (None: run all steps)
     steps: int | None = None          # overrides the mode's default step count
@@ -98,71 +103,41 @@ class FitConfig:
     fast: FastConfig = field(default_factory=FastConfig)
     platonerf: PlatoNeRFConfig = field(default_factory=PlatoNeRFConfig)
 
+    SETTINGS_META = {"mode": {"choices": FIT_METHODS, "help": "reconstruction method (contract/methods.py)"},
+                     "threads": {"range": (1, None)},
+                     "steps": {"range": (0, None)}, "max_seconds": {"range": (0, None), "unit": "s"},
+                     "checkpoint_every_s": {"unit": "s"}}
+
     def __post_init__(self):
-        if self.mode not in MODES:
-            raise ValueError(f"mode: expected one of {list(MODES)}, got {self.mode!r}")
+        method(self.mode)       # SettingsError naming 'mode' for an unknown method
         if not 0.0 <= self.loss.warmup_fraction <= 1.0:
-            raise ValueError(f"loss.warmup_fraction: expected a fraction in [0, 1], got {self.loss.warmup_fraction}")
-        if self.fast.coarse_resolution < 4 or self.fast.resolution < 4:
-            raise ValueError("fast.resolution and fast.coarse_resolution must be >= 4 "
-                             "(a coarse level at or above the resolution is skipped)")
-        if self.device not in ("auto", "cpu", "cuda"):
-            raise ValueError(f"device: expected 'auto', 'cpu' or 'cuda', got {self.device!r}")
+            raise SettingsError("loss.warmup_fraction",
+                                f"expected a fraction in [0, 1], got {self.loss.warmup_fraction}")
+        for key in ("resolution", "coarse_resolution"):
+            if getattr(self.fast, key) < 4:
+                raise SettingsError(f"fast.{key}", f"expected an integer >= 4 (a coarse level at or above the "
+                                                   f"resolution is skipped), got {getattr(self.fast, key)}")
+        check_device_name(self.device)
+
+    @property
+    def method_settings(self):
+        """The settings section of this mode (the method table says which)."""
+        return getattr(self, method(self.mode).section)
 
     @property
     def total_steps(self) -> int:
         if self.steps is not None:
             return int(self.steps)
-        return self.fast.steps if self.mode == "fast" else self.platonerf.steps
+        return self.method_settings.steps
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict) -> "FitConfig":
-        return _from_dict(cls, d, "config")
-
-
-def _from_dict(cls, d, path):
-    if not isinstance(d, dict):
-        raise ValueError(f"{path}: expected an object, got {type(d).__name__}")
-    known = {f.name: f for f in fields(cls)}
-    unknown = set(d) - set(known)
-    if unknown:
-        raise ValueError(f"{path}: unknown setting(s) {sorted(unknown)}; known: {sorted(known)}")
-    kw = {}
-    for name, value in d.items():
-        default = getattr(cls(), name) if name not in ("loss", "fast", "platonerf") else None
-        sub = {"loss": LossConfig, "fast": FastConfig, "platonerf": PlatoNeRFConfig}.get(name)
-        if sub is not None and cls is FitConfig:
-            kw[name] = _from_dict(sub, value, f"{path}.{name}")
-        else:
-            if is_dataclass(default):
-                raise ValueError(f"{path}.{name}: nested settings not supported here")
-            kw[name] = value
-    return cls(**kw)
+    def from_dict(cls, d: dict, source: str = "") -> "FitConfig":
+        return settings.from_dict(cls, d, source)
 
 
 def override(cfg: FitConfig, assignments: list[str]) -> FitConfig:
-    """Apply 'section.key=value' strings (CLI --set), values parsed as JSON when possible."""
-    import json
-
-    d = cfg.to_dict()
-    for a in assignments:
-        if "=" not in a:
-            raise ValueError(f"--set {a!r}: expected KEY=VALUE, e.g. fast.resolution=96")
-        key, raw = a.split("=", 1)
-        try:
-            value = json.loads(raw)
-        except json.JSONDecodeError:
-            value = raw
-        node = d
-        parts = key.split(".")
-        for p in parts[:-1]:
-            if not isinstance(node.get(p), dict):
-                raise ValueError(f"--set {key}: no settings section {p!r}")
-            node = node[p]
-        if parts[-1] not in node:
-            raise ValueError(f"--set {key}: unknown setting {parts[-1]!r}")
-        node[parts[-1]] = value
-    return FitConfig.from_dict(d)
+    """Apply 'section.key=value' strings (CLI --set), each type- and range-checked."""
+    return settings.with_values(cfg, settings.parse_assignments(assignments))

@@ -11,13 +11,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..contract.errors import MeasurementsError, UnconstrainedMeasurementsError  # noqa: F401 (Unconstrained...: re-export)
 from ..contract.frames import pixel_rays
 from ..measurements import Measurements
-
-
-class UnconstrainedMeasurementsError(ValueError):
-    """The measurements leave the geometry unconstrained (no usable pair, or not one two-bounce return):
-    a fit is refused rather than returning an arbitrary volume."""
 
 
 @dataclass
@@ -77,7 +73,7 @@ class RayData:
 
 def build_ray_data(meas: Measurements) -> RayData:
     if not meas.spots:
-        raise ValueError("measurements: no spots")
+        raise UnconstrainedMeasurementsError("measurements: no spots")
     h, w = meas.height, meas.width
     _, dirs = pixel_rays(meas.camera_to_world, w, h, meas.fov_rad, meas.fov_axis)
     c = np.asarray(meas.sensor_origin, np.float64)
@@ -86,11 +82,11 @@ def build_ray_data(meas: Measurements) -> RayData:
     for k, s in enumerate(meas.spots):
         l = np.asarray(s.first_bounce, np.float64)
         if l.shape != (3,) or not np.all(np.isfinite(l)):
-            raise ValueError(f"measurements: spot {s.spot_id}: first_bounce must be 3 finite numbers, got {l}")
+            raise MeasurementsError(f"measurements: spot {s.spot_id}: first_bounce must be 3 finite numbers, got {l}")
         for name in ("path_length", "signal", "shadow", "excluded"):
             if getattr(s, name).shape != (h, w):
-                raise ValueError(f"measurements: spot {s.spot_id}: {name} has shape {getattr(s, name).shape}, "
-                                 f"expected {(h, w)}")
+                raise MeasurementsError(f"measurements: spot {s.spot_id}: {name} has shape "
+                                        f"{getattr(s, name).shape}, expected {(h, w)}")
         ls.append(l)
         p = s.path_length.reshape(-1).astype(np.float32)
         sig = s.signal.reshape(-1) & np.isfinite(p) & ~s.excluded.reshape(-1)

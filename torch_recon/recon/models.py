@@ -262,8 +262,17 @@ def _depth(r, far, min_opacity):
     return torch.where(r.opacity >= min_opacity, d, torch.full_like(d, float("inf")))
 
 
-def build_model(data: RayData, cfg: FitConfig, meas_meta: dict, generator: torch.Generator):
-    if cfg.mode == "fast":
-        return FastModel(data, cfg, meas_meta)
+def build_fast(data: RayData, cfg: FitConfig, meas_meta: dict, generator: torch.Generator):
+    return FastModel(data, cfg, meas_meta)
+
+
+def build_platonerf(data: RayData, cfg: FitConfig, meas_meta: dict, generator: torch.Generator):
     return PlatoNeRFModel(data, cfg, meas_meta, generator)
+
+
+def build_model(data: RayData, cfg: FitConfig, meas_meta: dict, generator: torch.Generator):
+    """The model of cfg.mode, as the method table (contract/methods.py) names it."""
+    from ..contract.methods import load, method
+
+    return load(method(cfg.mode).model)(data, cfg, meas_meta, generator)
 

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import torch
 
+from ..contract.errors import CheckpointError
 from .config import FitConfig
 from .losses import in_warmup
 
@@ -55,7 +56,7 @@ def save_checkpoint(path: Path, model, gen: torch.Generator, step: int, cfg: Fit
 def load_checkpoint(path: Path, model, gen: torch.Generator, cfg: FitConfig):
     ck = torch.load(path, map_location="cpu", weights_only=False)
     if ck.get("config") != _config_key(cfg):
-        raise ValueError(f"{path}: checkpoint was written with other settings; remove it or pass --no-resume")
+        raise CheckpointError(f"{path}: checkpoint was written with other settings; remove it or pass --no-resume")
     model.load_state_dict(ck["model"])
     gen.set_state(ck["generator"])
     return int(ck["step"]), ck.get("history", []), float(ck.get("train_seconds", 0.0))
@@ -95,7 +96,7 @@ def train(model, data, cfg: FitConfig, gen: torch.Generator, out_dir=None, on_ev
     from tqdm.auto import tqdm
 
     total = cfg.total_steps
-    batch = cfg.fast.rays_per_batch if cfg.mode == "fast" else cfg.platonerf.rays_per_batch
+    batch = cfg.method_settings.rays_per_batch
     res = TrainResult()
     ck_path = Path(out_dir) / CHECKPOINT_NAME if out_dir is not None else None
     start = 0

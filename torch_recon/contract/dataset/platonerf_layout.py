@@ -21,7 +21,7 @@ from ..frames import blender_to_paper_c2w, blender_to_paper_points, paper_to_ble
 from ..ground_truth import MESH_FILE, write_mesh, write_test_views, write_train_depth
 from .schema import (DatasetError, GroundTruth, GroundTruthViews, Manifest, NoiseSpec, Provenance, PulseSpec,
                      SensorSpec, Spot, TimeGate, TransientLayout)
-from .store import Dataset, DatasetWriter, _check_array, transient_relpath
+from .store import Dataset, DatasetWriter, _check_array, read_json, transient_relpath
 from .transient import Transient
 
 TRANSFORMS = "transforms_train.json"
@@ -142,10 +142,7 @@ def import_platonerf(src_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
     tpath = src / TRANSFORMS
     if not tpath.is_file():
         raise DatasetError(str(tpath), "", "transforms_train.json is missing")
-    try:
-        doc = json.loads(tpath.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise DatasetError(str(tpath), "", f"not valid JSON ({exc})") from None
+    doc = read_json(tpath)
     f = str(tpath)
     angle = doc.get("camera_angle_x") if isinstance(doc, dict) else None
     if isinstance(angle, bool) or not isinstance(angle, (int, float)) or not 0 < angle < math.pi:

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import PlatolidarError
 from ..units import bin_widths_consistent, ps_to_m
 
 SCHEMA_NAME = "platolidar.dataset"
@@ -20,7 +21,7 @@ SUPPORTED_VERSIONS = ("1.0",)
 MANIFEST_NAME = "dataset.json"
 
 
-class DatasetError(ValueError):
+class DatasetError(PlatolidarError, ValueError):
     """A dataset that cannot be used: names the file, the field and what was expected."""
 
     def __init__(self, file: str, field_path: str, message: str):

@@ -40,6 +40,14 @@ def _check_array(arr: np.ndarray, file: str, field: str, nonneg: bool = False, a
         raise DatasetError(file, field, f"{int((arr < 0).sum())} negative value(s); counts must be >= 0")
 
 
+def read_json(path: Path):
+    """A JSON file's content, or DatasetError naming the file."""
+    try:
+        return json.loads(Path(path).read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise DatasetError(str(path), "", f"not valid JSON ({exc})") from None
+
+
 class Dataset:
     """A validated dataset directory. Transients are read lazily, validated on read."""
 
@@ -50,10 +58,7 @@ class Dataset:
             raise DatasetError(str(self.root), "", "dataset directory does not exist")
         if not mpath.is_file():
             raise DatasetError(str(mpath), "", "manifest missing: not a dataset directory, or an incomplete one")
-        try:
-            raw = json.loads(mpath.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise DatasetError(str(mpath), "", f"not valid JSON ({exc})") from None
+        raw = read_json(mpath)
         self.manifest = Manifest.from_dict(raw, file=str(mpath))
         for i, s in enumerate(self.manifest.spots):
             if not (self.root / s.transient_file).is_file():

@@ -1,37 +1,31 @@
-"""Time gating and binning benchmark (sensor model of the simulator).
+"""Time gating (the simulator's sensor model): SBR gain of the gate against window length, and binning speed.
 
-1. SBR gain of the time gate vs window length W at the paper's sensor (391 bins of 128 ps,
-   128 ps FWHM pulse): half the pixels lit by a two-bounce return at a random path, half in
-   shadow, constant ambient background, Poisson counts. Measured: intensity-image SBR
-   (I_lit - I_shadow) / I_shadow with the gate over the same without it; also the supplement's
-   Eq. (3)/(5) form sum(s^2) / (N^2 W) with s and N estimated from the counts. Predicted: T / W,
-   and T / W times the fraction of the pulse inside the window (narrow gates cut the pulse).
-2. Speed at paper scale: bin_two_bounce at 512 x 512 x 391 with S = 4 sub-samples of a smooth
-   synthetic room (fresh output vs a reused buffer), and apply_sensor for three noise settings.
-
-    python benchmarks/bench_gating.py [--resolution 512] [--sbr-pixels 128]
-Writes benchmarks/results/gating.json and benchmarks/results/gating.png.
+1. SBR gain of the time gate vs window length W at the paper's sensor (391 bins of 128 ps, 128 ps FWHM
+   pulse): half the pixels lit by a two-bounce return at a random path, half in shadow, constant ambient
+   background, Poisson counts. Measured: intensity-image SBR (I_lit - I_shadow) / I_shadow with the gate
+   over the same without it; also the supplement's Eq. (3)/(5) form sum(s^2) / (N^2 W) with s and N
+   estimated from the counts. Predicted: T / W, and T / W times the fraction of the pulse inside the
+   window (narrow gates cut the pulse). One row per window (no time fields).
+2. Speed at paper scale: bin_two_bounce at 512 x 512 x 391 with S = 4 sub-samples of a smooth box room
+   (fresh output vs a reused buffer), and apply_sensor for three noise settings; one row each.
 """
 
 from __future__ import annotations
 
-import argparse
-import os
 import statistics
-import sys
-from pathlib import Path
+from dataclasses import dataclass
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import numpy as np
 
-import numpy as np  # noqa: E402
+from benchmarks.harness import Suite, report
 
-from benchmarks.common import RESULTS_DIR, machine_info, machine_line, peak_rss_mb, timer, write_json  # noqa: E402
-from pipeline.sensor_model import apply_sensor  # noqa: E402
-from pipeline.transient_binning import bin_two_bounce, expected_return_path  # noqa: E402
-from torch_recon.contract.analytic import pulse_bin_weights  # noqa: E402
-from torch_recon.contract.dataset import NoiseSpec, SensorSpec, TimeGate  # noqa: E402
-from torch_recon.contract.frames import camera_ray_directions, look_at_c2w  # noqa: E402
-from torch_recon.contract.units import ps_to_m  # noqa: E402
+
+@dataclass(frozen=True)
+class Settings:
+    resolution: int = 512        # binning benchmark sensor
+    sbr_pixels: int = 128        # side of the SBR test image
+    repeats: int = 3
+
 
 WINDOWS = (1, 2, 3, 4, 6, 8, 16, 32, 64, 128, 256, 391)
 
@@ -68,7 +62,12 @@ def _rel_sigma(signal, background, lit) -> float:
     return float(np.sqrt(var_l + var_b * (1 + sbr) ** 2) / background / sbr)
 
 
-def sbr_curve(n_side: int, seed: int = 0) -> list[dict]:
+def sbr_curve(n_side: int, seed: int = 0):
+    from pipeline.sensor_model import apply_sensor
+    from torch_recon.contract.analytic import pulse_bin_weights
+    from torch_recon.contract.dataset import NoiseSpec, SensorSpec, TimeGate
+    from torch_recon.contract.units import ps_to_m
+
     t = 391
     base = dict(width=n_side, height=n_side, bins=t)
     rng = np.random.default_rng(seed)
@@ -107,6 +106,8 @@ def sbr_curve(n_side: int, seed: int = 0) -> list[dict]:
 
 def room_samples(sensor, subpixel=2, lo=(-2.0, -1.0, -1.5), hi=(2.0, 4.5, 1.5)):
     """Sub-pixel world positions and normals of a box room seen from inside (smooth, with corners)."""
+    from torch_recon.contract.frames import camera_ray_directions
+
     c2w = np.asarray(sensor.camera_to_world)
     c = c2w[:3, 3]
     g = (np.arange(subpixel) + 0.5) / subpixel - 0.5
@@ -123,7 +124,13 @@ def room_samples(sensor, subpixel=2, lo=(-2.0, -1.0, -1.5), hi=(2.0, 4.5, 1.5)):
     return x.astype(np.float32), n
 
 
-def speed(res: int, repeats: int = 3) -> dict:
+def speed(ctx, res: int, repeats: int) -> list[dict]:
+    """Rows of binning and sensor-model timings on a box room at res x res."""
+    from pipeline.sensor_model import apply_sensor
+    from pipeline.transient_binning import bin_two_bounce, expected_return_path
+    from torch_recon.contract.dataset import NoiseSpec, SensorSpec, TimeGate
+    from torch_recon.contract.frames import look_at_c2w
+
     sensor = SensorSpec(width=res, height=res, camera_to_world=look_at_c2w((0, 0, 0), (0, 1, 0)).tolist())
     x, n = room_samples(sensor)
     l, nl = np.array([0.5, 4.5, 0.2]), np.array([0.0, -1.0, 0.0])
@@ -134,48 +141,51 @@ def speed(res: int, repeats: int = 3) -> dict:
     rad = rad.astype(np.float32)
     valid = np.ones(rad.shape, bool)
     o = np.zeros(3)
-    with timer() as t_first:
+    scene = f"box room {res} x {res} x {sensor.bins}, S={x.shape[0]}"
+    with ctx.timed() as first:
         cube = bin_two_bounce(x, rad, valid, l, o, o, sensor)
-    reuse, reuse_cpu, single = [], [], []
+    rows = [{"method": "bin_two_bounce, fresh output", "scene": scene, **first.times(), "cube_mb": cube.nbytes / 2 ** 20}]
+    reuse, single = [], []
     for _ in range(repeats):
-        with timer() as t:
+        with ctx.timed() as t:
             bin_two_bounce(x, rad, valid, l, o, o, sensor, out=cube)
-        reuse.append(t.seconds)
-        reuse_cpu.append(t.cpu_seconds)
-        with timer() as t:
+        reuse.append(t)
+        with ctx.timed() as t:
             bin_two_bounce(x, rad, valid, l, o, o, sensor, out=cube, threads=1)
-        single.append(t.seconds)
+        single.append(t)
+    for name, ts in (("bin_two_bounce, reused buffer", reuse), ("bin_two_bounce, reused buffer, 1 thread", single)):
+        rows.append({"method": name, "scene": scene, "wall_s": statistics.median(t.wall_s for t in ts),
+                     "cpu_s": statistics.median(t.cpu_s for t in ts), "peak_rss_mb": max(t.peak_rss_mb for t in ts),
+                     "min_wall_s": min(t.wall_s for t in ts), "repeats": repeats})
     path = expected_return_path(x, valid, l, o, o)
-    out = {"resolution": res, "subsamples": int(x.shape[0]), "bins": sensor.bins,
-           "bin_first_call_s": t_first.seconds, "bin_first_call_cpu_s": t_first.cpu_seconds, "bin_reused_buffer_s_median": statistics.median(reuse),
-           "bin_reused_buffer_s_min": min(reuse), "bin_reused_buffer_s_all": reuse,
-           "bin_reused_buffer_cpu_s_median": statistics.median(reuse_cpu),
-           "bin_reused_buffer_one_thread_s_median": statistics.median(single), "cube_mb": cube.nbytes / 2 ** 20,
-           "lit_fraction": float(np.mean(rad > 0))}
-    settings = {
-        "expected_values": (NoiseSpec(), TimeGate()),
-        "poisson_gate32": (NoiseSpec(photon_counts=True, photons_per_pixel=1000.0, ambient_per_bin=0.05),
-                           TimeGate(True, 32)),
-        "poisson_ambient_dense": (NoiseSpec(photon_counts=True, photons_per_pixel=1000.0, ambient_per_bin=0.05),
-                                  TimeGate()),
-    }
-    for name, (noise, gate) in settings.items():
+    noisy = NoiseSpec(photon_counts=True, photons_per_pixel=1000.0, ambient_per_bin=0.05)
+    for name, noise, gate in (("expected values", NoiseSpec(), TimeGate()), ("poisson, gate 32", noisy, TimeGate(True, 32)),
+                              ("poisson + ambient, dense", noisy, TimeGate())):
         s = SensorSpec(**{**sensor.__dict__, "time_gate": gate})
-        with timer() as t:
+        with ctx.timed() as t:
             tr, layout = apply_sensor(cube, s, noise, np.random.default_rng(0), expected_path=path)
-        out[f"sensor_{name}_s"] = t.seconds
-        out[f"sensor_{name}_cpu_s"] = t.cpu_seconds
-        out[f"sensor_{name}_window_bins"] = layout.window_bins
+        rows.append({"method": f"apply_sensor, {name}", "scene": scene, **t.times(), "window_bins": layout.window_bins})
         del tr
-    out["peak_rss_mb"] = peak_rss_mb()
-    return out
+    return rows
 
 
-def plot(rows, path):
+def run(s: Settings, ctx) -> list[dict]:
+    curve, ref = sbr_curve(s.sbr_pixels)
+    ctx.log(f"  ungated SBR: intensity {ref['ungated_sbr_intensity']:.4f}, Eq.5 {ref['ungated_sbr_eq5']:.5f}")
+    rows = [{"method": f"gate {r['window_bins']} bins", "scene": f"half-lit {s.sbr_pixels} px, Poisson",
+             "wall_s": None, "cpu_s": None, "peak_rss_mb": None, **r, **{f"ungated_{k}": v for k, v in ref.items()}}
+            for r in curve]
+    for r in rows:
+        ctx.log(f"  W={r['window_bins']:>3}: T/W {r['predicted_gain']:7.2f}, with pulse cut {r['predicted_gain_pulse_cut']:7.2f},"
+                f" measured {r['measured_gain_intensity']:7.2f}")
+    return rows + speed(ctx, s.resolution, s.repeats)
+
+
+def plot(rows, settings, path):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
+    rows = [r for r in rows if "window_bins" in r and "predicted_gain" in r]
     w = [r["window_bins"] for r in rows]
     fig, ax = plt.subplots(figsize=(5.5, 4))
     ax.loglog(w, [r["predicted_gain"] for r in rows], "k--", label="predicted T/W")
@@ -193,46 +203,16 @@ def plot(rows, path):
     plt.close(fig)
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--resolution", type=int, default=512, help="binning benchmark resolution (default 512)")
-    ap.add_argument("--sbr-pixels", type=int, default=128, help="side of the SBR test image (default 128)")
-    ap.add_argument("--out", default=str(RESULTS_DIR), help="results folder")
-    args = ap.parse_args(argv)
-    info = machine_info()
-    print(machine_line(info))
-    rows, ref = sbr_curve(args.sbr_pixels)
-    print(f"\nSBR gain of the time gate ({ref['pixels']} pixels, {ref['photons_per_pixel']:g} signal photons per lit "
-          f"pixel, {ref['background_per_bin']:g} background photons per bin, Poisson)")
-    print(f"ungated SBR: intensity {ref['ungated_sbr_intensity']:.4f}, Eq.5 {ref['ungated_sbr_eq5']:.5f}")
-    print("predicted: T/W; 'cut' columns also count the pulse energy (intensity) or squared energy (Eq. 5)\n"
-          "that a narrow gate cuts away; ratio = measured / predicted-with-cut (intensity), sigma its 1-sigma")
-    print(f"{'W':>4} {'T/W':>8} {'pred.cut':>8} {'meas.int':>9} {'ratio':>6} {'sigma':>6} "
-          f"{'pred.eq5':>9} {'meas.eq5':>9}")
-    for r in rows:
-        print(f"{r['window_bins']:>4} {r['predicted_gain']:>8.2f} {r['predicted_gain_pulse_cut']:>8.2f} "
-              f"{r['measured_gain_intensity']:>9.2f} "
-              f"{r['measured_gain_intensity'] / r['predicted_gain_pulse_cut']:>6.3f} "
-              f"{r['intensity_gain_rel_sigma']:>6.3f} {r['predicted_gain_eq5_pulse_cut']:>9.2f} "
-              f"{r['measured_gain_eq5']:>9.2f}")
-    sp = speed(args.resolution)
-    print(f"\nbinning {sp['resolution']}x{sp['resolution']}x{sp['bins']}, S={sp['subsamples']}: first call "
-          f"{sp['bin_first_call_s']:.3f} s wall / {sp['bin_first_call_cpu_s']:.3f} s CPU (fresh {sp['cube_mb']:.0f} MB cube), "
-          f"reused buffer {sp['bin_reused_buffer_s_median']:.3f} s (median of 3, min "
-          f"{sp['bin_reused_buffer_s_min']:.3f} s)")
-    print(f"  (CPU time {sp['bin_reused_buffer_cpu_s_median']:.3f} s; one thread "
-          f"{sp['bin_reused_buffer_one_thread_s_median']:.3f} s wall)")
-    print(f"load average during the run: {os.getloadavg()[0]:.2f} (other processes share the CPU when > 1)")
-    for name in ("expected_values", "poisson_gate32", "poisson_ambient_dense"):
-        print(f"apply_sensor {name:<22} {sp[f'sensor_{name}_s']:.3f} s wall, {sp[f'sensor_{name}_cpu_s']:.3f} s CPU "
-              f"(window {sp[f'sensor_{name}_window_bins']} bins)")
-    print(f"peak RSS {sp['peak_rss_mb']:.0f} MiB")
-    out = Path(args.out)
-    info["load_average_1min"] = os.getloadavg()[0]
-    write_json(out / "gating.json", {"machine": info, "sbr": {"reference": ref, "rows": rows}, "speed": sp})
-    plot(rows, out / "gating.png")
-    print(f"wrote {out / 'gating.json'} and {out / 'gating.png'}")
+def readme(results) -> str:
+    sbr = [r for r in results["rows"] if "predicted_gain" in r]
+    speed_rows = [r for r in results["rows"] if "predicted_gain" not in r]
+    return (report.markdown_table(sbr, [("window_bins", "window W (bins)"), ("predicted_gain", "T/W"),
+                                        ("predicted_gain_pulse_cut", "T/W x kept pulse"),
+                                        ("measured_gain_intensity", "measured gain (intensity)"),
+                                        ("measured_gain_eq5", "measured gain (Eq. 5)")])
+            + "\n\n" + report.markdown_table(speed_rows, [("method", "operation"), ("scene", "data"), ("wall_s", "wall s"),
+                                                          ("cpu_s", "CPU s")]))
 
 
-if __name__ == "__main__":
-    main()
+SUITE = Suite("gating", __doc__.splitlines()[0], run=run, plot=plot, readme=readme,
+              quick=Settings(resolution=128, sbr_pixels=64, repeats=1), full=Settings())

@@ -1,0 +1,145 @@
+"""The paper's ablations with the fast mode: spots, shadow threshold, spatial and temporal resolution, scenes.
+
+Data: Cycles datasets of the example scenes (16 of the paper's spots, 391 bins of 128 ps, noise-free
+unless stated), from the harness's dataset cache. Every row runs the same chain through the harness
+runners: `torch_recon preprocess` -> measurements .npz (changed in-process where the ablation needs it:
+a subset of the spots) -> `torch_recon fit` (same grid, steps and budget for every row) -> `torch_recon
+evaluate` of its mesh on the dataset's test views. Wall time = preprocess + fit processes (start-up,
+reading, mesh export included; evaluation excluded). A level that leaves no two-bounce return is
+refused by fit and recorded as such.
+- spots: 16 / 8 / 4 / 2 spots: every 2nd / 4th / 8th of the 16 (by id), visible depth re-fused
+  (paper, its Table: 0.0862 / 0.0912 / 0.1347 / 0.2147 m);
+- shadow: matched-filter shadow threshold 0 to 1 in steps of 0.125 (paper default 0.15);
+- spatial: sensor resolution 32 / 64 / 128 / 512 px (simulated at each);
+- temporal: 128 / 256 / 512 / 1024 ps bins by summing 1 / 2 / 4 / 8 adjacent bins of the 128 ps dataset;
+- scenes: cave-chair vs low-albedo walls vs a curved back wall.
+(ambient light: suites/ablation_ambient.py.)
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import numpy as np
+
+from benchmarks.harness import Refused, Suite, report, runners
+from benchmarks.harness.datasets import integrated_dataset
+
+PAPER_SPOTS = {16: 0.0862, 8: 0.0912, 4: 0.1347, 2: 0.2147}
+FIELDS = ("depth_l1_m", "depth_psnr_db", "chamfer_m", "fscore", "steps")
+
+
+@dataclass(frozen=True)
+class Settings:
+    levels: tuple[str, ...] = ()         # the ablation's levels (as text; each suite parses its own)
+    example: str = "cave-chair"
+    resolution: int = 64                 # sensor of the base dataset
+    grid: int = 96                       # fast-mode grid
+    steps: int | None = 100              # fixed steps: rows stay comparable on a shared machine
+    budget_s: float | None = 120.0       # and a wall-clock cap per fit
+    test_views: int = 24
+    test_view_resolution: int = 64
+
+
+def dataset(ctx, s: Settings, example=None, resolution=None, **options):
+    return ctx.dataset(example or s.example, resolution or s.resolution, test_views=s.test_views,
+                       test_view_resolution=s.test_view_resolution, **options)
+
+
+def fit_row(ctx, s: Settings, level, data, prep: dict, tag: str, transform=None, **extra) -> dict:
+    """One row: the preprocessed measurements (optionally changed by `transform(meas) -> meas`, saved
+    as a new .npz), a fast fit of them and its evaluation on `data`'s test views."""
+    from torch_recon.measurements import Measurements
+    meas = Measurements.load(prep["measurements"])
+    source = prep["measurements"]
+    if transform is not None:
+        with ctx.timed() as t:
+            meas = transform(meas)
+            source = meas.save(ctx.work_dir / f"{tag}-changed.npz")
+        prep = {**prep, **runners.combined(prep, t.times())}
+    info = {"level": level, "signal_fraction": float(np.mean([np.mean(sp.signal) for sp in meas.spots])), **extra}
+    try:
+        r = runners.fit(ctx, source, tag, dataset=data, steps=s.steps, max_seconds=s.budget_s,
+                        sets=(f"fast.resolution={s.grid}", f"fast.coarse_resolution={max(8, s.grid // 2)}"))
+    except Refused as exc:
+        ctx.log(f"    {level!s:>24}  refused: {exc}")
+        return {**runners.row("fast", s.example, prep, ("depth_l1_m", "depth_psnr_db"), **info), "refused": str(exc)}
+    row = runners.row("fast", s.example, {**r, **runners.combined(prep, r)}, FIELDS, **info,
+                      preprocess_wall_s=prep["wall_s"])
+    return row
+
+
+def dataset_row(ctx, s, level, data, tag, **prep_settings) -> dict:
+    return fit_row(ctx, s, level, data, runners.preprocess(ctx, data, f"{tag}-meas", **prep_settings), tag)
+
+
+def spots(s: Settings, ctx) -> list[dict]:
+    from torch_recon.visible_depth import fuse_visible_depth
+    data = dataset(ctx, s)
+    prep = runners.preprocess(ctx, data, "meas")
+
+    def keep(k):
+        def subset(meas):
+            m = copy.copy(meas)
+            m.spots = meas.spots[::max(1, len(meas.spots) // k)][:k]
+            fused = fuse_visible_depth(m)
+            m.visible_depth, m.visible_confidence = fused.depth, fused.confidence
+            return m
+        return subset
+    return [fit_row(ctx, s, int(k), data, prep, f"spots{k}", transform=keep(int(k)),
+                    paper_depth_l1_m=PAPER_SPOTS.get(int(k))) for k in s.levels]
+
+
+def shadow(s: Settings, ctx) -> list[dict]:
+    data = dataset(ctx, s)
+    return [dataset_row(ctx, s, float(t), data, f"shadow{t}", shadow_threshold=t) for t in s.levels]
+
+
+def spatial(s: Settings, ctx) -> list[dict]:
+    return [dataset_row(ctx, s, int(r), dataset(ctx, s, resolution=int(r)), f"res{r}") for r in s.levels]
+
+
+def temporal(s: Settings, ctx) -> list[dict]:
+    base = dataset(ctx, s)
+    return [dataset_row(ctx, s, f"{128 * int(f)} ps", integrated_dataset(ctx, base, int(f)), f"bins{f}")
+            for f in s.levels]
+
+
+def scenes(s: Settings, ctx) -> list[dict]:
+    return [{**dataset_row(ctx, s, name, dataset(ctx, s, example=name), name), "scene": name} for name in s.levels]
+
+
+def plot(rows, settings, path):
+    report.plot_rows(rows, path, y="depth_l1_m", label="level", kind="bar",
+                     title=f"ablation ({settings.example} {settings.resolution} px, grid {settings.grid}, "
+                           f"{settings.steps} steps)")
+
+
+def readme(results) -> str:
+    rows = [{**r, "level": str(r["level"]), "depth_l1_m": "refused" if r.get("refused") else r.get("depth_l1_m")}
+            for r in results["rows"]]
+    cols = [("level", "level"), ("depth_l1_m", "depth L1 m"), ("depth_psnr_db", "PSNR dB"), ("steps", "steps"),
+            ("wall_s", "wall s", ".1f"), ("signal_fraction", "signal fraction", ".2f")]
+    if any("paper_depth_l1_m" in r for r in rows):
+        cols.append(("paper_depth_l1_m", "paper L1 m"))
+    return report.markdown_table(rows, cols)
+
+
+def ablation(name, fn, full_levels, quick_levels, description):
+    quick = Settings(levels=quick_levels, resolution=32, grid=48, steps=20, budget_s=60.0, test_views=6,
+                     test_view_resolution=32)
+    return Suite(f"ablation_{name}", description, quick=quick, full=Settings(levels=full_levels), run=fn, plot=plot,
+                 readme=readme)
+
+
+SUITES = [
+    ablation("spots", spots, ("16", "8", "4", "2"), ("16", "2"), "ablation: 16 / 8 / 4 / 2 spots (fast mode)"),
+    ablation("shadow", shadow, tuple(str(i * 0.125) for i in range(9)), ("0.0", "0.125", "1.0"),
+             "ablation: matched-filter shadow threshold 0 ... 1 (fast mode)"),
+    ablation("spatial", spatial, ("32", "64", "128", "512"), ("16", "32"), "ablation: sensor resolution (fast mode)"),
+    ablation("temporal", temporal, ("1", "2", "4", "8"), ("1", "4"),
+             "ablation: 128 / 256 / 512 / 1024 ps bins, by summing adjacent bins (fast mode)"),
+    ablation("scenes", scenes, ("cave-chair", "low-albedo", "curved-wall"), ("cave-chair", "curved-wall"),
+             "ablation: cave-chair vs low-albedo walls vs a curved back wall (fast mode)"),
+]
