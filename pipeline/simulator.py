@@ -16,6 +16,7 @@ import json
 import math
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 
 import bpy
@@ -37,6 +38,8 @@ SIM_VERSION = "1.1"   # 1.1: deferred Lambertian shading, adaptive edge sampling
 LASER_POWER_W = 1.0          # expected values are in units of this power; the sensor model rescales
 RGB_POWER_W = 100.0          # point light of the RGB-shadow images (exposure only)
 DEFAULT_ALBEDO = 0.8
+#: spots whose transients may wait for the background writer
+WRITE_QUEUE = 2
 
 
 class SimulationError(PlatolidarError, RuntimeError):
@@ -339,8 +342,10 @@ def write_dataset(out_dir, plans, ctx: RunContext):
     """Render (or reuse) every spot, write ground truth and commit: one atomic dataset."""
     cfg, timings, old = ctx.cfg, ctx.timings, ctx.old
     old_files = {s.content_hash: old.root / s.transient_file for s in old.manifest.spots} if old else {}
-    with DatasetWriter(out_dir) as writer:
-        spots, rgb_files, layout = [], [], None
+    # transients are written by one background thread (zlib in OpenEXR runs without the GIL) while
+    # the next spot is shaded; at most WRITE_QUEUE spots wait, bounding memory
+    with DatasetWriter(out_dir) as writer, ThreadPoolExecutor(max_workers=1) as write_pool:
+        spots, rgb_files, layout, pending = [], [], None, []
         for k, p in enumerate(plans):
             t0 = time.perf_counter()
             h = spot_hash(p, ctx.common)
@@ -352,8 +357,10 @@ def write_dataset(out_dir, plans, ctx: RunContext):
                 tr, lay = simulate_spot(p, ctx.renderer, ctx.sensor, ctx.noise, ctx.geometry, ctx.window_bound,
                                         ctx.ambient_scale, cfg, ctx.vpl, timings, ctx.sampler)
                 t1 = time.perf_counter()
-                writer.write_transient(p.id, tr, lay.sample_type)
-                _tick(timings, "write_s", t1)
+                while len(pending) >= WRITE_QUEUE:
+                    pending.pop(0).result()
+                pending.append(write_pool.submit(_timed_write, writer, p.id, tr, lay.sample_type, timings))
+                _tick(timings, "write_wait_s", t1)
                 what = "rendered"
             if layout is not None and (lay.kind, lay.window_bins) != (layout.kind, layout.window_bins):
                 raise SimulationError(f"internal: spot {p.id} has layout {lay} unlike {layout}")
@@ -369,7 +376,9 @@ def write_dataset(out_dir, plans, ctx: RunContext):
             log(f"spot {k + 1}/{len(plans)} (id {p.id}, {p.name}): l = {np.round(p.first_bounce, 3).tolist()}, "
                 f"albedo {p.albedo:.2f}, {what} in {dt:.2f} s")
         t0 = time.perf_counter()
-        gt = ground_truth.write_ground_truth(writer, ctx.mesh, ctx.sensor, cfg)
+        gt = ground_truth.write_ground_truth(writer, ctx.mesh, ctx.sensor, cfg)   # overlaps the last writes
+        for f in pending:
+            f.result()
         timings["ground_truth_s"] = time.perf_counter() - t0
         manifest = Manifest(sensor=ctx.sensor, spots=spots, layout=layout, noise=ctx.noise, ground_truth=gt,
                             rgb_files=rgb_files,
@@ -380,6 +389,12 @@ def write_dataset(out_dir, plans, ctx: RunContext):
                                                          "subpixel_samples": cfg.subpixel_samples,
                                                          "laser_power_w": LASER_POWER_W}))
         writer.commit(manifest)
+
+
+def _timed_write(writer, spot_id, tr, sample_type, timings):
+    t0 = time.perf_counter()
+    writer.write_transient(spot_id, tr, sample_type)
+    timings["write_s"] = timings.get("write_s", 0.0) + time.perf_counter() - t0   # one writer thread
 
 
 def _tick(timings, key, t0):
