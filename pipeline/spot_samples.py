@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from pipeline import adaptive_sampling, transient_binning
-from pipeline.spot_shading import SceneRays, two_bounce_radiance
+from pipeline.spot_shading import SceneRays, ShadingSamples, two_bounce_radiance
 
 
 #: at most this many interpolated samples per side of a smooth pixel (spacing <= 0.5 bin up to 4 bins)
@@ -45,25 +45,28 @@ class SpotSampler:
         self.spread_bins = float(spread_bins)
         self.breaks = adaptive_sampling.surface_breaks(pos, nrm, valid) if adaptive_samples else None
         self.power = float(laser_power_w)
+        iv = self.valid.reshape(-1)
+        self.base = ShadingSamples(self.pos.reshape(-1, 3)[iv], self.nrm.reshape(-1, 3)[iv], self.alb.reshape(-1)[iv],
+                                   sensor.sensor_origin)
         self.o = np.asarray(sensor.laser_origin, np.float64)
         self.c = np.asarray(sensor.sensor_origin, np.float64)
 
-    def _shade(self, x, n, rho, valid, spot):
+    def _shade(self, x, n, rho, valid, spot, prepared=None):
         """Radiance and optical path of samples (..., 3) (0 and NaN where not valid)."""
         shape = valid.shape
         iv = valid.reshape(-1)
+        if prepared is None:
+            prepared = ShadingSamples(x.reshape(-1, 3)[iv], n.reshape(-1, 3)[iv], rho.reshape(-1)[iv], self.c)
         rad = np.zeros(iv.size, np.float32)
         path = np.full(iv.size, np.nan)
-        xv = x.reshape(-1, 3)[iv]
-        rad[iv] = two_bounce_radiance(self.rays, xv, n.reshape(-1, 3)[iv], rho.reshape(-1)[iv], spot.first_bounce,
-                                      spot.normal, spot.albedo, self.power, self.c)
-        path[iv] = transient_binning.optical_path(xv, spot.first_bounce, self.o, self.c)
+        rad[iv], path[iv] = two_bounce_radiance(self.rays, prepared, spot.first_bounce, spot.normal, spot.albedo,
+                                                self.power, self.o)
         return rad.reshape(shape), path.reshape(shape)
 
     def expected_windows(self, spot, window_bins: int):
         """(start (P,), window (P, G) float32, needed bins, {reason: pixel count, stage: seconds}) of one spot."""
         t0 = time.perf_counter()
-        rad, path = self._shade(self.pos, self.nrm, self.alb, self.valid, spot)       # (S, P)
+        rad, path = self._shade(self.pos, self.nrm, self.alb, self.valid, spot, self.base)     # (S, P)
         keep = np.ones(self.n_pixels, bool)
         pix_parts, path_parts, amp_parts = [], [], []
         counts = {}

@@ -34,7 +34,7 @@ from torch_recon.contract.units import fwhm_to_sigma, ps_to_m
 #: the Gaussian pulse is truncated at this many standard deviations (mass outside: 6e-5)
 PULSE_SUPPORT_SIGMAS = 4.0
 #: rows of PulseKernel.tabulated_weights' table over a sample's position within a bin
-TABLE_STEPS = 2048
+TABLE_STEPS = 4096
 #: sub-samples of one pixel up to this many bins apart are summed in a local window first
 FAST_SPREAD_BINS = 3
 #: below this many pixels per thread, threads cost more than they save
@@ -85,8 +85,9 @@ class PulseKernel:
         return first, w
 
     def tabulated_weights(self, path_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """weights() from a table over the sample's position within its first bin (linear between
-        TABLE_STEPS + 1 exact rows; error < 1e-6 per weight, rows still sum to 1): no erf per sample."""
+        """weights() from a table over the sample's position within its first bin: the nearest of
+        TABLE_STEPS exact rows (the path rounded to 1/TABLE_STEPS bin, 9 um for 3.84 cm bins; rows
+        sum to 1 exactly): a gather instead of K + 1 erf per sample."""
         u = (np.asarray(path_m, np.float64) - self.start_m) / self.bin_width_m
         if self.shape == "box":
             return np.floor(u).astype(np.int64), np.ones((len(u), 1))
@@ -100,10 +101,8 @@ class PulseKernel:
         half_bins = PULSE_SUPPORT_SIGMAS * self.sigma_m / self.bin_width_m
         v = u - half_bins
         first = np.floor(v).astype(np.int64)
-        x = (v - first) * TABLE_STEPS
-        i = np.minimum(x.astype(np.int64), TABLE_STEPS - 1)
-        t = (x - i)[:, None]
-        return first, self._table[i] * (1.0 - t) + self._table[i + 1] * t
+        i = np.minimum(((v - first) * TABLE_STEPS + 0.5).astype(np.int64), TABLE_STEPS)
+        return first, self._table[i]
 
 
 def optical_path(x, first_bounce, laser_origin, sensor_centre) -> np.ndarray:
@@ -370,9 +369,11 @@ def bin_windows(pixels, paths, amps, n_pixels: int, sensor, window_bins: int, *,
     needed = int((hi[has] - start[has]).max()) + 1
     if needed > g:
         return start, window, needed
-    bins = first[:, None] + np.arange(k_sup)[None, :]
-    ok = (bins >= 0) & (bins < t)
-    idx = (pixels * g - start[pixels])[:, None] + bins
-    acc = np.bincount(idx[ok], weights=(amps[:, None] * w)[ok], minlength=n_pixels * g)
-    window[:] = acc.reshape(n_pixels, g)
+    w *= amps[:, None]
+    idx = (pixels * g - start[pixels] + first)[:, None] + np.arange(k_sup)[None, :]
+    if first.min() < 0 or first.max() + k_sup > t:          # pulse tails past the range: cut
+        bins = first[:, None] + np.arange(k_sup)[None, :]
+        ok = (bins >= 0) & (bins < t)
+        idx, w = idx[ok], w[ok]
+    window[:] = np.bincount(idx.ravel(), weights=w.ravel(), minlength=n_pixels * g).reshape(n_pixels, g)
     return start, window, needed
