@@ -39,7 +39,7 @@ LASER_POWER_W = 1.0          # expected values are in units of this power; the s
 RGB_POWER_W = 100.0          # point light of the RGB-shadow images (exposure only)
 DEFAULT_ALBEDO = 0.8
 #: spots whose transients may wait for the background writer
-WRITE_QUEUE = 2
+WRITE_QUEUE = 1
 
 
 class SimulationError(PlatolidarError, RuntimeError):

@@ -33,6 +33,8 @@ from torch_recon.contract.units import fwhm_to_sigma, ps_to_m
 
 #: the Gaussian pulse is truncated at this many standard deviations (mass outside: 6e-5)
 PULSE_SUPPORT_SIGMAS = 4.0
+#: samples per chunk of bin_windows (bounds its temporaries to ~BIN_CHUNK x K x 20 bytes)
+BIN_CHUNK = 1 << 18
 #: rows of PulseKernel.tabulated_weights' table over a sample's position within a bin
 TABLE_STEPS = 4096
 #: sub-samples of one pixel up to this many bins apart are summed in a local window first
@@ -358,8 +360,10 @@ def bin_windows(pixels, paths, amps, n_pixels: int, sensor, window_bins: int, *,
     window = np.zeros((n_pixels, g), np.float32)
     if not len(pixels):
         return start, window, 0
-    first, w = kernel.tabulated_weights(paths)
-    k_sup = w.shape[1]
+    k_sup = kernel.support_bins
+    first = np.floor((paths - kernel.start_m) / kernel.bin_width_m
+                     - (PULSE_SUPPORT_SIGMAS * kernel.sigma_m / kernel.bin_width_m if kernel.shape != "box" else 0.0)
+                     ).astype(np.int64)
     lo = np.full(n_pixels, t, np.int64)
     hi = np.full(n_pixels, -1, np.int64)
     np.minimum.at(lo, pixels, np.maximum(first, 0))
@@ -369,6 +373,18 @@ def bin_windows(pixels, paths, amps, n_pixels: int, sensor, window_bins: int, *,
     needed = int((hi[has] - start[has]).max()) + 1
     if needed > g:
         return start, window, needed
+    flat = window.reshape(-1)
+    offsets = np.arange(k_sup)[None, :]
+    for a in range(0, len(paths), BIN_CHUNK):      # bounded temporaries (N x K per chunk)
+        b = slice(a, a + BIN_CHUNK)
+        f, w = kernel.tabulated_weights(paths[b])
+        w *= amps[b, None]
+        idx = (pixels[b] * g - start[pixels[b]] + f)[:, None] + offsets
+        if f.min() < 0 or f.max() + k_sup > t:          # pulse tails past the range: cut
+            ok = (f[:, None] + offsets >= 0) & (f[:, None] + offsets < t)
+            idx, w = idx[ok], w[ok]
+        np.add.at(flat, idx.ravel(), w.ravel().astype(np.float32))
+    return start, window, needed
     w *= amps[:, None]
     idx = (pixels * g - start[pixels] + first)[:, None] + np.arange(k_sup)[None, :]
     if first.min() < 0 or first.max() + k_sup > t:          # pulse tails past the range: cut
