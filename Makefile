@@ -30,9 +30,10 @@ test: venv
 test-all: venv
 	$(PY) -m pytest -q
 
-# every benchmark suite (benchmarks/suites/) -> benchmarks/results/*.json + .png; docs/benchmarks.md
+# every benchmark suite (benchmarks/suites/) -> benchmarks/results/*.json + .png, then the README/docs tables
+# from them; bench-quick: smoke runs -> benchmarks/results/quick/ (docs/benchmarks.md)
 bench: venv
-	$(PY) -m benchmarks all
+	$(PY) -m benchmarks all; rc=$$?; $(PY) -m benchmarks readme; exit $$rc
 
 bench-quick: venv
 	$(PY) -m benchmarks all --quick

@@ -18,6 +18,7 @@ from . import _project
 
 _project.ensure_importable()
 from pipeline.config import CONFIG_TEXT_NAME, ConfigError, SimulationConfig, SpotConfig  # noqa: E402
+from torch_recon.contract.errors import PlatolidarError  # noqa: E402,F401 - the operators catch this base
 from torch_recon.contract.units import ps_to_m  # noqa: E402
 
 SOURCE = "Lidar panel"

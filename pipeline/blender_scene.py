@@ -14,6 +14,7 @@ from mathutils import Matrix, Vector
 
 from torch_recon.contract.errors import PlatolidarError
 from pipeline.config import CONFIG_TEXT_NAME, SimulationConfig, SpotConfig
+from torch_recon.contract.scene_objects import OBJECTS_COLLECTION
 from torch_recon.contract.scenes import AreaLight, BlenderPrimitive, ExampleScene, MeshPart
 
 
@@ -42,11 +43,38 @@ def _link(scene, obj):
     return obj
 
 
+def _object_collection(scene, label: str):
+    """The collection Objects/<label> (made on first use): how a scene labels the objects that matter."""
+    top = bpy.data.collections.get(OBJECTS_COLLECTION)
+    if top is None:
+        top = bpy.data.collections.new(OBJECTS_COLLECTION)
+        scene.collection.children.link(top)
+    col = top.children.get(label)
+    if col is None:
+        col = bpy.data.collections.new(label)
+        top.children.link(col)
+    return col
+
+
+def labelled_objects() -> dict | None:
+    """{label: [object names]} from the collection 'Objects' (see contract.scene_objects); None without it."""
+    top = bpy.data.collections.get(OBJECTS_COLLECTION)
+    if top is None:
+        return None
+    out = {o.name: [o.name] for o in top.objects if o.type == "MESH"}
+    for col in top.children:
+        names = [o.name for o in col.all_objects if o.type == "MESH"]
+        if names:
+            out[col.name] = names
+    return out or None
+
+
 def build_example(ex: ExampleScene, config: SimulationConfig | None = None):
     """Replace the open file by an empty scene holding `ex`; store its settings in the .blend."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     scene.name = ex.name
+    label_of = {p: label for label, parts in ex.objects.items() for p in parts}
     for part in ex.parts:
         mat = diffuse_material(f"{part.name}_albedo", part.albedo)
         if isinstance(part, MeshPart):
@@ -65,6 +93,11 @@ def build_example(ex: ExampleScene, config: SimulationConfig | None = None):
         else:
             raise ValueError(f"unknown part {part!r}")
         obj.data.materials.append(mat)
+        if part.name in label_of:     # move the part from the scene's root into Objects/<label>
+            _object_collection(scene, label_of[part.name]).objects.link(obj)
+            for c in list(obj.users_collection):
+                if c.name != label_of[part.name]:
+                    c.objects.unlink(obj)
     for light in ex.lights:
         if isinstance(light, AreaLight):
             data = bpy.data.lights.new(light.name, "AREA")

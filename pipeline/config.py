@@ -74,6 +74,8 @@ class SimulationConfig:
     test_views_dolly: int = 39             # 0 to skip
     test_views_orbit: int = 100
     test_view_resolution: int = 128
+    test_view_trajectory: str = "scene"    # 'scene': dolly + orbit around the scene's objects, each camera
+                                           # checked to be in free space; 'paper': the paper's 139-view preset
     gt_mesh: bool = True
     spots: list = field(default_factory=list)  # list[SpotConfig]; empty -> random spots
     random_candidates: int = 24
@@ -120,6 +122,8 @@ class SimulationConfig:
             bad("shading", f"expected 'lambertian' or 'cycles', got {self.shading!r}")
         if self.wavelength_filter_factor > 1:
             bad("wavelength_filter_factor", f"expected a fraction in [0, 1], got {self.wavelength_filter_factor}")
+        if self.test_view_trajectory not in ("scene", "paper"):
+            bad("test_view_trajectory", f"expected 'scene' or 'paper', got {self.test_view_trajectory!r}")
         if self.pulse_shape not in ("gaussian", "box"):
             bad("pulse_shape", f"expected 'gaussian' or 'box', got {self.pulse_shape!r}")
         if self.bounces not in (2, 3):
@@ -192,4 +196,6 @@ class SimulationConfig:
             d = load_file(path)
         except OSError as exc:
             raise ConfigError(str(path), "", f"cannot read ({exc.strerror})") from None
+        except SettingsError as exc:      # not JSON/TOML, not a table: the same ConfigError as a bad value
+            raise ConfigError(str(path), exc.key, exc.detail) from None
         return cls.from_dict(d, str(path))

@@ -25,6 +25,7 @@ import OpenEXR
 from mathutils import Vector
 
 from pipeline.blender_scene import scene_lights
+from torch_recon.contract.dataset.staging import InterruptGuard
 
 #: the emitter floats this far above the lit surface (keeps it out of the surface's own shadow test)
 EMITTER_OFFSET_M = 1e-3
@@ -140,7 +141,8 @@ class CyclesRenderer:
     def _render(self, name: str) -> dict:
         path = os.path.join(self.tmp.name, name + ".exr")
         self.scene.render.filepath = path
-        bpy.ops.render.render(write_still=True, scene=self.scene.name)
+        with InterruptGuard.deferring():   # Ctrl-C: this render ends, then the run stops (its image unused)
+            bpy.ops.render.render(write_still=True, scene=self.scene.name)
         return read_multilayer_exr(path)
 
     # -- renders ----------------------------------------------------------------------
@@ -198,7 +200,8 @@ class CyclesRenderer:
             r.image_settings.color_mode = "RGB"
             r.image_settings.color_depth = "8"
             r.filepath = path
-            bpy.ops.render.render(write_still=True, scene=sc.name)
+            with InterruptGuard.deferring():
+                bpy.ops.render.render(write_still=True, scene=sc.name)
         finally:
             bpy.data.objects.remove(obj)
             bpy.data.lights.remove(data)

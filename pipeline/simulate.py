@@ -58,7 +58,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "instead of the bpy module")
     ap.add_argument("--out", required=True, help="dataset directory to write (replaced atomically)")
     ap.add_argument("--example", help="build an example scene instead of a .blend: "
-                    "cave-chair, monkey, occluders, curved-wall, low-albedo, ambient")
+                    "cave-chair, monkey, occluders, curved-wall, low-albedo, ambient, organic-occluded, "
+                    "thin-structures, dark-room, outside-fov")
     ap.add_argument("--config", help="SimulationConfig JSON file (e.g. exported by the add-on)")
     ap.add_argument("--camera", help="camera object (default: the scene camera)")
     ap.add_argument("--resolution", type=int, help="N: an N x N sensor")
@@ -251,9 +252,15 @@ def simulate(args) -> int:
 def main(argv=None) -> int:
     args = build_parser().parse_args(_argv() if argv is None else argv)  # exits 2 with a usage line on bad options
     _add_venv_site_packages()
+    from torch_recon.contract.dataset.staging import InterruptGuard
     from torch_recon.contract.errors import run_command
 
-    return run_command(simulate, args, prog="simulate", interrupted="interrupted; nothing written")
+    InterruptGuard.install()      # Ctrl-C / SIGTERM stop the run between renders; the old dataset stays
+    try:
+        return run_command(simulate, args, prog="simulate",
+                           interrupted="interrupted; nothing written, the dataset at --out (if any) is as it was")
+    finally:
+        InterruptGuard.uninstall()
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ import math
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import bpy
 import numpy as np
@@ -254,13 +254,17 @@ class RunContext:
     mesh: object
     vpl: object
     timings: dict
-    sampler: object = None      # SpotSampler (shading 'lambertian')
+    objects: dict = field(default_factory=dict)   # {label: (trimesh, part names)}: the GT writer's objects
+    room_mesh: object = None                      # the GT without those objects
+    sampler: object = None                        # SpotSampler (shading 'lambertian')
 
 
 def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
     """Simulate and commit the dataset at out_dir; returns timings and counts."""
     t_start = time.perf_counter()
     timings = {}
+    check_size(cfg)
+    DatasetWriter.check_target(out_dir)     # an output folder holding others' files: refused before rendering
     scene = bpy.context.scene
     bs.match_viewport_to_render(scene)
     cam = bs.sensor_camera(scene, cfg.camera)
@@ -284,6 +288,7 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
     if len(triangles[1]) == 0:
         raise SimulationError("the scene has no render-visible mesh geometry")
     plans = plan_spots(cfg, scene, depsgraph, sensor, keep_requested)
+    check_spots_in_view(plans, sensor)
 
     renderer = CyclesRenderer(scene, cam, cfg.width, cfg.height, side, seed=cfg.seed)
     try:
@@ -314,6 +319,8 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
         ctx = RunContext(cfg, scene_label, renderer, sensor, noise, geometry, g_bound, ambient_scale, common,
                          _previous_dataset(out_dir), ground_truth.scene_mesh(triangles[0], triangles[1]),
                          third_bounce.ThirdBounce(scene, depsgraph, cfg) if cfg.bounces == 3 else None, timings)
+        ctx.objects = ground_truth.object_meshes(*triangles, labelled=bs.labelled_objects())
+        ctx.room_mesh = ground_truth.room_mesh(triangles, ctx.objects)
         if cfg.shading == "lambertian":
             t0 = time.perf_counter()
             ctx.sampler = SpotSampler(sensor, geometry, triangles, albedos, cfg.adaptive_subpixel_samples,
@@ -338,6 +345,48 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
     return {"spots": len(plans), "timings": timings}
 
 
+def _reusable(path, old) -> bool:
+    """An earlier run's transient may be reused only if it still reads back whole and valid."""
+    from torch_recon.contract.dataset import read_transient_file
+    if not path.is_file():
+        return False
+    try:
+        read_transient_file(path, old.manifest, "reused transient")
+    except (DatasetError, OSError, ValueError) as exc:
+        log(f"note: {path.name} of the earlier dataset is damaged ({str(exc)[:120]}); rendering it again")
+        return False
+    return True
+
+
+def check_size(cfg) -> None:
+    """Refuse, before anything is built, a sensor no machine can hold (with the estimate)."""
+    from torch_recon.contract.units import transient_size_problem
+
+    problem = transient_size_problem(cfg.width, cfg.height, cfg.bins)
+    if problem:
+        key = "bins" if max(cfg.width, cfg.height) <= 8192 else "width' / 'height"
+        raise SimulationError(f"setting '{key}': {problem}")
+    side = math.isqrt(max(cfg.subpixel_samples, 1))
+    if max(cfg.width, cfg.height) * side > 65536:
+        raise SimulationError(f"setting 'subpixel_samples': {cfg.width} x {cfg.height} pixels x {side}^2 samples "
+                              f"exceed Cycles' 65536 x 65536 render limit")
+
+
+def check_spots_in_view(plans, sensor) -> None:
+    """Every spot's l must lie in the sensor's view: its first bounce locates it (else preprocess refuses)."""
+    c2w = np.asarray(sensor.camera_to_world)
+    outside = []
+    for p in plans:
+        col, row, depth = project_points(c2w, sensor.width, sensor.height, sensor.fov_rad, p.first_bounce,
+                                         sensor.fov_axis)
+        if not (depth > 0 and 0 <= col < sensor.width and 0 <= row < sensor.height):
+            outside.append(f"{p.id} ({p.name})")
+    if outside:
+        raise SimulationError(f"spot(s) {', '.join(outside)} lie outside the sensor's {sensor.width}x{sensor.height} "
+                              f"view (their first bounce cannot be measured): aim them inside the view or change "
+                              f"the width/height or the camera")
+
+
 def write_dataset(out_dir, plans, ctx: RunContext):
     """Render (or reuse) every spot, write ground truth and commit: one atomic dataset."""
     cfg, timings, old = ctx.cfg, ctx.timings, ctx.old
@@ -350,7 +399,7 @@ def write_dataset(out_dir, plans, ctx: RunContext):
             t0 = time.perf_counter()
             h = spot_hash(p, ctx.common)
             rel = transient_relpath(p.id)
-            if h in old_files and old_files[h].is_file():
+            if h in old_files and _reusable(old_files[h], old):
                 writer.reuse_file(old_files[h], rel)
                 what, lay = "unchanged, reused", old.manifest.layout
             else:
@@ -376,7 +425,8 @@ def write_dataset(out_dir, plans, ctx: RunContext):
             log(f"spot {k + 1}/{len(plans)} (id {p.id}, {p.name}): l = {np.round(p.first_bounce, 3).tolist()}, "
                 f"albedo {p.albedo:.2f}, {what} in {dt:.2f} s")
         t0 = time.perf_counter()
-        gt = ground_truth.write_ground_truth(writer, ctx.mesh, ctx.sensor, cfg)   # overlaps the last writes
+        gt = ground_truth.write_ground_truth(writer, ctx.mesh, ctx.sensor, cfg, ctx.objects,
+                                             ctx.room_mesh)   # overlaps the last transient writes
         for f in pending:
             f.result()
         timings["ground_truth_s"] = time.perf_counter() - t0

@@ -180,13 +180,15 @@ def _edit_transforms(pn, edit):
 PN_CASES = {
     "no camera angle": (lambda d: d.pop("camera_angle_x"), "camera_angle_x"),
     "camera angle of 0": (lambda d: d.update(camera_angle_x=0), "camera_angle_x"),
+    "camera angle of 180 degrees": (lambda d: d.update(camera_angle_x=180), "camera_angle_x"),
+    "ignore not a list": (lambda d: d.update(ignore="0,1"), "ignore"),
     "no frames": (lambda d: d.update(frames=[]), "frames"),
     "frame without light": (lambda d: d["frames"][1].pop("light_origin"), "frames[1].light_origin"),
     "zero light direction": (lambda d: d["frames"][0].update(light_direction=[0, 0, 0]), "frames[0].light_direction"),
     "two cameras": (lambda d: d["frames"][2]["transform_matrix"][0].__setitem__(3, 5.0), "frames[2].transform_matrix"),
     "matrix of wrong shape": (lambda d: d["frames"][0].update(transform_matrix=[[1, 0], [0, 1]]),
                               "frames[0].transform_matrix"),
-    "missing cube": (lambda d: d["frames"][1].update(file_path="nowhere.npy"), "frames[1].file_path"),
+    "missing cube": (lambda d: d["frames"][1].update(file_path="./train/nowhere"), "frames[1].file_path"),
 }
 
 
@@ -199,17 +201,17 @@ def test_malformed_platonerf_layout(platonerf_dir, tmp_path, case):
 
 
 def test_platonerf_cube_problems(platonerf_dir, tmp_path):
-    cube_path = platonerf_dir / "transients" / "spot_0001.npy"
+    cube_path = platonerf_dir / "train" / "001.npy"
     good = np.load(cube_path)
     for bad, msg in ((good[:, :, :10], "differs"), (good[..., 0], "H x W x T"),
                      (np.where(good > 2, np.nan, good), "NaN"), (-good - 1, "negative")):
         np.save(cube_path, bad)
-        err = _refused(platonerf_dir, "spot_0001.npy", "frames[1].file_path",
+        err = _refused(platonerf_dir, "001.npy", "frames[1].file_path",
                        lambda r: import_platonerf(r, tmp_path / "out"))
         assert msg in str(err)
     cube_path.write_bytes(b"\x93NUMPY garbage")
-    _refused(platonerf_dir, "spot_0001.npy", "frames[1].file_path", lambda r: import_platonerf(r, tmp_path / "out"))
-    shutil.rmtree(platonerf_dir / "transients")
-    _refused(platonerf_dir, "spot_0000", "frames[0].file_path", lambda r: import_platonerf(r, tmp_path / "out"))
+    _refused(platonerf_dir, "001.npy", "frames[1].file_path", lambda r: import_platonerf(r, tmp_path / "out"))
+    shutil.rmtree(platonerf_dir / "train")
+    _refused(platonerf_dir, "000.npy", "frames[0].file_path", lambda r: import_platonerf(r, tmp_path / "out"))
     (platonerf_dir / "transforms_train.json").unlink()
     _refused(platonerf_dir, "transforms_train.json", "", lambda r: import_platonerf(r, tmp_path / "out"))

@@ -93,7 +93,7 @@ def test_evaluate_ground_truth_mesh_is_perfect(small_ds, tmp_path):
     gt = trimesh.load(small_ds.path(small_ds.manifest.ground_truth.mesh_file), force="mesh")
     # the GT mesh is not a closed solid with outward normals (an inverted room box): render it two-sided
     r = evaluate(small_ds, tmp_path / "ev", mesh=gt,
-                 settings=EvalSettings(n_surface_samples=20000, cull_back_faces=False))
+                 settings=EvalSettings(n_surface_samples=20000, cull_back_faces=False, objects=False, pictures=False))
     saved = json.loads((tmp_path / "ev" / "report.json").read_text())
     for k in ("depth_l1_m", "depth_psnr_db", "chamfer_m", "fscore", "n_test_views", "n_excluded_pixels"):
         assert k in saved
@@ -107,7 +107,8 @@ def test_evaluate_shifted_mesh_costs_the_shift(small_ds, tmp_path):
     gt = trimesh.load(small_ds.path(small_ds.manifest.ground_truth.mesh_file), force="mesh")
     moved = gt.copy()
     moved.apply_translation([0, 0, 0.1])
-    r = evaluate(small_ds, tmp_path / "ev", mesh=moved, settings=EvalSettings(n_surface_samples=20000, error_images=0))
+    r = evaluate(small_ds, tmp_path / "ev", mesh=moved, settings=EvalSettings(n_surface_samples=20000, error_images=0,
+                                                                         objects=False, pictures=False))
     assert 0.01 < r["depth_l1_m"] < 0.3 and r["fscore"] < 1.0
     with pytest.raises(ValueError, match="exactly one"):
         evaluate(small_ds, tmp_path / "x")

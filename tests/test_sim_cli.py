@@ -114,7 +114,7 @@ def test_third_bounce_adds_later_light(tmp_path):
     assert (extra * bins).sum() / extra.sum() > (c2 * bins).sum() / c2.sum()   # longer paths
 
 
-@pytest.mark.parametrize("name", ["monkey", "occluders", "curved-wall", "low-albedo", "ambient"])
+@pytest.mark.parametrize("name", ["monkey", "occluders", "curved-wall", "low-albedo", "ambient", "thin-structures"])
 def test_examples_simulate(tmp_path, name):
     simulate(tmp_path / "ds", "--example", name, "--resolution", 16, "--spots", 1, "--test-views", 2,
              "--test-view-resolution", 8)

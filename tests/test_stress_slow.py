@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from benchmarks.stress import select
-from stress_fixtures import case_params, check_case, run_by_name
+from stress_fixtures import case_params, check_case, run_by_name, select
 
 pytestmark = pytest.mark.slow
 _QUICK = {c.name for c in select(quick=True)}

@@ -190,14 +190,14 @@ def carve(meas, settings: BFLidarSettings | None = None, device="cpu", progress=
     import torch
     from scipy.ndimage import gaussian_filter
 
-    from .contract.frames import pixel_rays
     s = settings or BFLidarSettings()
     s.validate()
     t0 = time.perf_counter()
     if meas.visible_depth is None:
         raise UnconstrainedMeasurementsError("measurements carry no visible depth: preprocess with "
                                              "compute_visible_depth=True")
-    o, d = pixel_rays(meas.camera_to_world, meas.width, meas.height, meas.fov_rad, meas.fov_axis)
+    d = meas.pixel_directions()
+    o = np.broadcast_to(meas.sensor_origin, d.shape)
     depth = meas.visible_depth
     ok = np.isfinite(depth)
     if meas.visible_confidence is not None:

@@ -48,4 +48,7 @@ def main(argv=None) -> int:
         from .commands.simulate import main as simulate_main
         return simulate_main(argv[1:])
     args = build_parser().parse_args(argv)
-    return run_command(args.func, args)
+    from .contract.dataset.staging import terminate_as_interrupt
+
+    with terminate_as_interrupt():     # SIGTERM cleans up like Ctrl-C (staging folders, temporary files)
+        return run_command(args.func, args)

@@ -60,6 +60,13 @@ class EvalSettings:
     crop_max: tuple | None = None
     density_samples: int = 192        # volume rendering samples per ray
     density_min_opacity: float = 0.5  # below this accumulated opacity a density ray counts as a miss
+    objects: bool = True              # object-level metrics (torch_recon.evaluation.objects)
+    pictures: bool = True             # shaded renders, error images, summary.html / summary.png
+    picture_size: int = 192           # pixels per side of each render
+    object_metric_settings: dict | None = None   # ObjectMetricSettings fields (sample densities, thresholds)
+    check_test_views: bool = True     # drop (and count) test views whose camera is not in free space
+    view_clearance_m: float = 0.005   # a test camera closer than this to a surface is not in free space
+                                      # (the paper's orbit passes 1 cm from its back wall)
     cull_back_faces: bool = True      # mesh rays pass through faces seen from behind (a test camera just
                                       # inside a reconstructed wall, e.g. the paper's orbit 1 cm from the
                                       # back wall, sees the scene, not the wall's inside); GT stays two-sided
@@ -81,18 +88,20 @@ def render_mesh_depth(mesh, c2w, width, height, fov_rad, fov_axis="x", cull_back
 
 
 def render_density_depth(density, c2w, width, height, fov_rad, bbox_min, bbox_max, fov_axis="x", n_samples=192,
-                         min_opacity=0.5, device="cpu", chunk=1 << 16) -> np.ndarray:
+                         min_opacity=0.5, device="cpu", chunk=1 << 16, pixels=None) -> np.ndarray:
     """Expected depth of a density field density(xyz (N, 3) torch) -> sigma (N,) along each pixel ray.
 
     Samples are spaced evenly over the ray's segment inside [bbox_min, bbox_max];
     depth = sum(w t) / sum(w) where the accumulated opacity sum(w) >= min_opacity,
-    else inf (a miss). Returns (H, W) float32.
+    else inf (a miss). Returns (H, W) float32, or (len(pixels),) for the row-major pixel indices `pixels`.
     """
     import torch
 
     c2w = np.asarray(c2w, np.float64)
-    dirs = camera_ray_directions(width, height, fov_rad, fov_axis) @ c2w[:3, :3].T
-    d = torch.as_tensor(dirs.reshape(-1, 3), dtype=torch.float32, device=device)
+    dirs = (camera_ray_directions(width, height, fov_rad, fov_axis) @ c2w[:3, :3].T).reshape(-1, 3)
+    if pixels is not None:
+        dirs = dirs[np.asarray(pixels)]
+    d = torch.as_tensor(dirs, dtype=torch.float32, device=device)
     o = torch.as_tensor(c2w[:3, 3], dtype=torch.float32, device=device)
     lo = torch.as_tensor(np.asarray(bbox_min, np.float64), dtype=torch.float32, device=device)
     hi = torch.as_tensor(np.asarray(bbox_max, np.float64), dtype=torch.float32, device=device)
@@ -116,7 +125,8 @@ def render_density_depth(density, c2w, width, height, fov_rad, bbox_min, bbox_ma
             acc = w.sum(1)
             dep = (w * t).sum(1) / acc.clamp_min(1e-10)
             out[s:s + chunk] = torch.where(hit & (acc >= min_opacity), dep, torch.full_like(dep, float("inf")))
-    return out.reshape(height, width).cpu().numpy().astype(np.float32)
+    out = out.cpu().numpy().astype(np.float32)
+    return out if pixels is not None else out.reshape(height, width)
 
 
 # ---------------------------------------------------------------- metrics
@@ -255,6 +265,31 @@ def _sample_density_mesh(density, bbox_min, bbox_max, level, res=128, device="cp
     return mesh_from_volume(vol, bbox_min, bbox_max, level)[0]
 
 
+def _load_gt_mesh(dataset):
+    import trimesh
+    rel = dataset.manifest.ground_truth.mesh_file
+    return None if rel is None else trimesh.load(dataset.path(rel), force="mesh", process=False)
+
+
+def _valid_test_views(dataset, gt_mesh, settings, report):
+    """The dataset's test views with cameras in free space (others dropped with a warning and counted)."""
+    tv = dataset.test_views()
+    if tv is None:
+        return None
+    views, cams, gt = tv
+    report["n_test_views_invalid"] = int(getattr(views, "n_invalid", 0) or 0)    # dropped by the simulator
+    report["test_view_trajectory"] = getattr(views, "trajectory", None)
+    if gt_mesh is not None and settings.check_test_views:
+        from .contract.test_views import check_test_views
+        valid, vrep = check_test_views(gt_mesh, cams, settings.view_clearance_m)
+        report["n_test_views_invalid"] += int((~valid).sum())
+        report["test_views_invalid"] = vrep["invalid"]
+        cams, gt = cams[valid], gt[valid]
+        if not len(cams):
+            return None
+    return views, cams, gt
+
+
 def evaluate(dataset, out_dir, mesh=None, density=None, bbox_min=None, bbox_max=None, density_mesh_level=None,
              settings: EvalSettings | None = None, device="cpu", progress=False, extra=None) -> dict:
     """Evaluate a reconstruction (a world-frame trimesh mesh, or a density callable + bbox) on a dataset.
@@ -272,7 +307,9 @@ def evaluate(dataset, out_dir, mesh=None, density=None, bbox_min=None, bbox_max=
     t0 = time.perf_counter()
     report = {"dataset": str(dataset.root), "dataset_hash": dataset.content_hash(),
               "reconstruction": "mesh" if mesh is not None else "density", "settings": asdict(settings)}
-    tv = dataset.test_views()
+    gt_mesh = _load_gt_mesh(dataset)
+    tv = _valid_test_views(dataset, gt_mesh, settings, report)
+    preds = gt = None
     if tv is None:
         report.update({"depth_l1_m": None, "depth_psnr_db": None, "n_test_views": 0, "n_excluded_pixels": 0,
                        "note": "dataset has no ground_truth.test_views: no depth metrics"})
@@ -301,12 +338,10 @@ def evaluate(dataset, out_dir, mesh=None, density=None, bbox_min=None, bbox_max=
                 write_error_image(out_dir / "views" / f"view_{i:04d}.png", preds[i], gt[i], dm["max_gt_depth_m"],
                                   settings.error_vmax_m)
         np.savez_compressed(out_dir / "test_depths.npz", pred=preds, gt=gt)
-    gt_rel = dataset.manifest.ground_truth.mesh_file
-    if gt_rel is None:
+    rec = None
+    if gt_mesh is None:
         report.update({"chamfer_m": None, "fscore": None, "surface_note": "dataset has no ground-truth mesh"})
     else:
-        import trimesh
-        gt_mesh = trimesh.load(dataset.path(gt_rel), force="mesh", process=False)
         rec = mesh
         if rec is None and density_mesh_level is not None:
             rec = _sample_density_mesh(density, bbox_min, bbox_max, density_mesh_level, device=device)
@@ -316,9 +351,21 @@ def evaluate(dataset, out_dir, mesh=None, density=None, bbox_min=None, bbox_max=
         else:
             report.update(surface_metrics(rec, gt_mesh, settings.fscore_threshold_m, settings.n_surface_samples,
                                           settings.seed, settings.crop_min, settings.crop_max))
-    report["eval_seconds"] = round(time.perf_counter() - t0, 3)
     if extra:
         report["extra"] = extra
+    if rec is not None and (settings.objects or settings.pictures):
+        from .evaluation.objects import ObjectMetricSettings, object_surface_metrics
+        from .evaluation.report import load_gt_objects, write_summary
+        objects, report["objects_source"] = load_gt_objects(dataset, gt_mesh)
+        if settings.objects:
+            report["object_metrics"] = object_surface_metrics(rec, gt_mesh, objects, dataset.manifest.sensor,
+                                                              ObjectMetricSettings(**{"seed": settings.seed,
+                                                                 **(settings.object_metric_settings or {})}))
+        if settings.pictures:
+            report["pictures"] = write_summary(out_dir, report, gt_mesh, rec, objects,
+                                               dataset.manifest.sensor.camera_to_world, preds, gt,
+                                               size=settings.picture_size)
+    report["eval_seconds"] = round(time.perf_counter() - t0, 3)
     tmp = out_dir / ".report.json.partial"
     tmp.write_text(json.dumps(report, indent=1))
     tmp.replace(out_dir / "report.json")

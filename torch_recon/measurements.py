@@ -60,10 +60,19 @@ class Measurements:
     visible_depth: np.ndarray | None = None     # (H, W) range along pixel rays (closed form, fused); NaN = unknown
     visible_confidence: np.ndarray | None = None  # (H, W) in [0, 1]
     settings: dict = field(default_factory=dict)  # preprocessing settings used (JSON-able)
+    ray_directions: np.ndarray | None = None      # (H, W, 3) unit world directions when the sensor is no
+                                                  # pinhole (e.g. a scanned real capture); None = pinhole
 
     @property
     def sensor_origin(self) -> np.ndarray:
         return np.asarray(self.camera_to_world)[:3, 3]
+
+    def pixel_directions(self) -> np.ndarray:
+        """(H, W, 3) unit world-frame direction of each pixel's ray (from `sensor_origin`)."""
+        if self.ray_directions is not None:
+            return np.asarray(self.ray_directions, np.float64)
+        from .contract.frames import pixel_rays
+        return pixel_rays(self.camera_to_world, self.width, self.height, self.fov_rad, self.fov_axis)[1]
 
     def save(self, path) -> Path:
         path = Path(path)
@@ -73,6 +82,8 @@ class Measurements:
                   "fov_axis": np.array(self.fov_axis), "camera_to_world": self.camera_to_world,
                   "laser_origin": self.laser_origin}
         arrays["settings_json"] = np.array(json.dumps(self.settings))
+        if self.ray_directions is not None:
+            arrays["ray_directions"] = np.asarray(self.ray_directions, np.float64)
         if self.visible_depth is not None:
             arrays["visible_depth"] = self.visible_depth
             arrays["visible_confidence"] = self.visible_confidence
@@ -86,22 +97,59 @@ class Measurements:
                 if getattr(s, name) is not None:
                     arrays[f"s{k}_{name}"] = np.asarray(getattr(s, name))
         tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez_compressed(tmp, **arrays)
-        tmp.replace(path)
+        try:                    # whole or not at all: a failed write leaves the earlier file as it was
+            np.savez_compressed(tmp, **arrays)
+            tmp.replace(path)
+        finally:
+            tmp.unlink(missing_ok=True)
         return path
 
     @classmethod
     def load(cls, path) -> "Measurements":
-        z = np.load(path, allow_pickle=False)
+        """Read and validate a measurements .npz (MeasurementsError naming the file and the array)."""
+        import zipfile
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                return cls._from_npz(z, path)
+        except MeasurementsError:
+            raise
+        except KeyError as exc:
+            raise MeasurementsError(f"{path}: not a measurements file of this project: array {exc} missing "
+                                        f"(write one with `python -m torch_recon preprocess`)") from None
+        except (zipfile.BadZipFile, EOFError, ValueError, TypeError, OSError) as exc:
+            if isinstance(exc, FileNotFoundError):
+                raise
+            raise MeasurementsError(f"{path}: unreadable measurements file (truncated or not a .npz: "
+                                        f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
+
+    @classmethod
+    def _from_npz(cls, z, path) -> "Measurements":
+        from .contract.units import transient_size_problem
+
         if int(z["version"]) != MEASUREMENTS_VERSION:
             raise MeasurementsError(f"{path}: measurements version {int(z['version'])}, "
                                     f"expected {MEASUREMENTS_VERSION}")
         fov, bw, thr = (float(v) for v in z["meta_f"])
         w, h = (int(v) for v in z["meta_i"])
+        too_big = transient_size_problem(w, h, 1) if w > 0 and h > 0 else f"{w} x {h} pixels"
+        if too_big:
+            raise MeasurementsError(f"{path}: meta_i (width, height): {too_big}")
+        c2w = np.asarray(z["camera_to_world"], np.float64)
+        if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
+            raise MeasurementsError(f"{path}: camera_to_world: expected a finite 4x4 matrix")
+        if not (np.isfinite([fov, bw]).all() and 0 < fov < np.pi and bw > 0):
+            raise MeasurementsError(f"{path}: meta_f: fov_rad {fov} or bin_width_m {bw} out of range")
         spots = []
         k = 0
         while f"s{k}_id" in z:
             fb = tuple(int(v) for v in z[f"s{k}_fbpix"])
+            for name in ("path_length", "signal", "shadow_confidence", "shadow", "excluded"):
+                if z[f"s{k}_{name}"].shape != (h, w):
+                    raise MeasurementsError(f"{path}: s{k}_{name}: expected shape {(h, w)}, "
+                                                f"got {z[f's{k}_{name}'].shape}")
+            for name in ("first_bounce", "laser_direction"):
+                if z[f"s{k}_{name}"].shape != (3,) or not np.isfinite(z[f"s{k}_{name}"]).all():
+                    raise MeasurementsError(f"{path}: s{k}_{name}: expected 3 finite numbers")
             spots.append(SpotMeasurement(
                 spot_id=int(z[f"s{k}_id"]), first_bounce=z[f"s{k}_first_bounce"],
                 laser_direction=z[f"s{k}_laser_direction"], path_length=z[f"s{k}_path_length"],
@@ -111,9 +159,12 @@ class Measurements:
                 **{name: (z[f"s{k}_{name}"] if name != "first_bounce_path_m" else float(z[f"s{k}_{name}"]))
                    for name in _OPTIONAL_SPOT_ARRAYS if f"s{k}_{name}" in z}))
             k += 1
+        if not spots:
+            raise MeasurementsError(f"{path}: no spots (arrays s0_*) in the file")
         return cls(width=w, height=h, fov_rad=fov, fov_axis=str(z["fov_axis"]),
                    camera_to_world=z["camera_to_world"], laser_origin=z["laser_origin"], bin_width_m=bw,
                    shadow_threshold=thr, spots=spots,
                    visible_depth=z["visible_depth"] if "visible_depth" in z else None,
                    visible_confidence=z["visible_confidence"] if "visible_confidence" in z else None,
-                   settings=json.loads(str(z["settings_json"])) if "settings_json" in z else {})
+                   settings=json.loads(str(z["settings_json"])) if "settings_json" in z else {},
+                   ray_directions=z["ray_directions"] if "ray_directions" in z else None)

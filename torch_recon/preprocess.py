@@ -411,9 +411,48 @@ class _LazySpots:
             yield s, self.dataset.read_transient(s.id)
 
 
+def measurements_from_dataset(dataset, settings: PreprocessSettings | None = None, device="cpu") -> Measurements:
+    """A measurements-kind dataset (no transients): its stored per-pixel paths and masks as Measurements."""
+    settings = settings or PreprocessSettings()
+    settings.validate()
+    s = dataset.sensor
+    rays = dataset.ray_directions()
+    dirs = rays if rays is not None else world_pixel_directions(s)
+    c = np.asarray(s.camera_to_world, np.float64)[:3, 3]
+    spots = []
+    for sp in dataset.manifest.enabled_spots:
+        d = dataset.read_spot_measurement(sp.id)
+        l = np.asarray(sp.first_bounce, np.float64)
+        excluded = ~d["valid"] | parallel_mask(dirs, c, l, settings.parallel_sin)
+        signal = d["lit"] & ~excluded
+        ld = np.asarray(sp.laser_direction, np.float64)
+        spots.append(SpotMeasurement(
+            spot_id=int(sp.id), first_bounce=l, laser_direction=ld / np.linalg.norm(ld),
+            path_length=np.where(signal, d["path_m"], np.nan).astype(np.float32), signal=signal,
+            shadow_confidence=signal.astype(np.float32), shadow=~signal & ~excluded, excluded=excluded,
+            first_bounce_recorded=l))
+    if not spots:
+        raise PreprocessError(f"{dataset.root}: no enabled spots")
+    m = Measurements(width=s.width, height=s.height, fov_rad=float(s.fov_rad), fov_axis=s.fov_axis,
+                     camera_to_world=np.asarray(s.camera_to_world, np.float64),
+                     laser_origin=np.asarray(s.laser_origin, np.float64), bin_width_m=float(s.bin_width_m),
+                     shadow_threshold=float(settings.shadow_threshold), spots=spots,
+                     settings={**asdict(settings), "source": "measurements dataset"}, ray_directions=rays)
+    if settings.compute_visible_depth:
+        from .visible_depth import fuse_visible_depth
+        fused = fuse_visible_depth(m, device=device)
+        m.visible_depth, m.visible_confidence = fused.depth, fused.confidence
+    return m
+
+
 def preprocess_dataset(dataset, settings: PreprocessSettings | None = None, device="cpu",
                        progress: bool = False) -> Measurements:
-    """Preprocess every enabled spot of a loaded Dataset (transients read one at a time)."""
+    """Preprocess every enabled spot of a loaded Dataset (transients read one at a time).
+
+    A measurements-kind dataset (schema 1.1, e.g. an imported real capture) already holds what
+    preprocessing extracts; it is read as it is (no matched filter, no first-bounce search)."""
+    if dataset.manifest.kind == "measurements":
+        return measurements_from_dataset(dataset, settings, device)
     try:
         return preprocess(dataset.sensor, _LazySpots(dataset), settings, device, progress)
     except PreprocessError as exc:

@@ -63,9 +63,8 @@ def fuse_visible_depth(meas, device="cpu", inlier_m: float | None = None, keep_p
     """Fuse the per-spot closed-form ranges of a Measurements into one depth map and confidence."""
     import torch
 
-    from .contract.frames import pixel_rays
     dtype = dtype or torch.float64
-    _, dirs = pixel_rays(meas.camera_to_world, meas.width, meas.height, meas.fov_rad, meas.fov_axis)
+    dirs = meas.pixel_directions()
     dirs = torch.as_tensor(dirs, dtype=dtype, device=device)
     c = np.asarray(meas.camera_to_world, np.float64)[:3, 3]
     inlier_m = meas.bin_width_m if inlier_m is None else inlier_m
@@ -94,11 +93,11 @@ def fuse_visible_depth(meas, device="cpu", inlier_m: float | None = None, keep_p
 
 def visible_points(meas, depth=None, min_confidence: float = 0.0) -> np.ndarray:
     """World points (N, 3) of pixels with a finite fused depth (and confidence >= min_confidence)."""
-    from .contract.frames import pixel_rays
     depth = meas.visible_depth if depth is None else depth
     if depth is None:
         raise MeasurementsError("measurements carry no visible depth; run preprocess with compute_visible_depth")
-    o, d = pixel_rays(meas.camera_to_world, meas.width, meas.height, meas.fov_rad, meas.fov_axis)
+    d = meas.pixel_directions()
+    o = np.broadcast_to(meas.sensor_origin, d.shape)
     ok = np.isfinite(depth)
     if meas.visible_confidence is not None:
         ok &= meas.visible_confidence >= min_confidence

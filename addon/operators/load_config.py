@@ -4,7 +4,7 @@ import bpy
 from bpy.props import StringProperty
 from bpy_extras.io_utils import ImportHelper
 
-from ..config_io import ConfigError, SimulationConfig, config_to_settings
+from ..config_io import PlatolidarError, SimulationConfig, config_to_settings
 from ._common import has_settings
 
 
@@ -26,8 +26,11 @@ class PLATOLIDAR_OT_load_config(bpy.types.Operator, ImportHelper):
         try:
             cfg = SimulationConfig.load(bpy.path.abspath(self.filepath))
             config_to_settings(cfg, context.scene)
-        except ConfigError as exc:
+        except PlatolidarError as exc:     # ConfigError, a SettingsError of the shared settings reader, ...
             self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        except OSError as exc:
+            self.report({"ERROR"}, f"Cannot read '{self.filepath}': {exc.strerror or exc}")
             return {"CANCELLED"}
         missing = [n for n in (cfg.camera, cfg.laser_object) if n and n not in bpy.data.objects]
         if missing:

@@ -4,7 +4,7 @@ evaluate runner, checks their rows and writes results/<name>.json + .png; README
 from those JSONs. See docs/benchmarks.md."""
 
 from benchmarks.harness.context import Context, CliError, Timing
-from benchmarks.harness.runners import Refused
+from benchmarks.harness.runners import NoSurface, Refused
 from benchmarks.harness.suite import Suite
 
-__all__ = ["Suite", "Context", "Timing", "CliError", "Refused"]
+__all__ = ["Suite", "Context", "Timing", "CliError", "Refused", "NoSurface"]

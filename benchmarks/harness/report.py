@@ -143,9 +143,10 @@ def write_json(path: Path, obj) -> Path:
 
 
 def plot_rows(rows, path: Path, title: str = "", y: str | None = None, x: str = "wall_s", kind: str = "scatter",
-              label="method") -> Path:
+              label="method", hline: tuple[float, str] | None = None) -> Path:
     """The one plot: each row's error `y` (default its first error field) against time `x` (a scatter, one
-    colour per label: the row's `label` field, or `label(row)` when callable), or as bars per row (kind='bar')."""
+    colour per label: the row's `label` field, or `label(row)` when callable), or as bars per row (kind='bar');
+    `hline` = (value, label): a reference line such as the paper's error."""
     name_of = label if callable(label) else (lambda r: str(r.get(label)))
     import matplotlib
     matplotlib.use("Agg")
@@ -163,6 +164,9 @@ def plot_rows(rows, path: Path, title: str = "", y: str | None = None, x: str = 
         ax.set_xlabel(x)
         if len(set(map(name_of, rows))) <= 12:
             ax.legend(fontsize=7)
+    if hline is not None:
+        ax.axhline(hline[0], color="gray", ls="--", lw=1, label=hline[1])
+        ax.legend(fontsize=7)
     ax.set_ylabel(y)
     ax.set_title(title, fontsize=9)
     ax.grid(alpha=0.3)
@@ -172,6 +176,19 @@ def plot_rows(rows, path: Path, title: str = "", y: str | None = None, x: str = 
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def paper_result(spots: int = 16) -> dict:
+    """The paper's test-view depth L1 / PSNR with `spots` spots (its supplement's Table 1), from
+    torch_recon.contract.reference, the only copy of the paper's numbers."""
+    from torch_recon.contract.reference import cave
+    r = cave()["paper_figures"]["supplement_table1_spots"][str(spots)]
+    return {"depth_l1_m": r["depth_l1_m"], "depth_psnr_db": r["psnr_db"]}
+
+
+def paper_line() -> tuple[float, str]:
+    """plot_rows(hline=...) of the paper's depth L1."""
+    return paper_result()["depth_l1_m"], "paper PlatoNeRF (16 spots, 512 px, GPU hours)"
 
 
 def _num(v):

@@ -8,8 +8,9 @@
 Each returns the evaluate report's metrics (report.json: depth L1/PSNR on the dataset's test views,
 Chamfer, F-score, ...) plus the method's times: wall_s / cpu_s / peak_rss_mb of the fit (or baseline)
 process, which includes start-up, reading, preprocessing and mesh export; evaluation is timed apart
-(evaluate_wall_s). A fit that refuses its input (exit 2, one line) raises Refused, so a suite can record
-a refusal as a row.
+(evaluate_wall_s). A fit that refuses its input (exit 2, one line) raises Refused, one whose field has no
+surface to mesh raises NoSurface (a Refused that carries the run's times), so a suite records either as a
+row (refused_row).
 """
 
 from __future__ import annotations
@@ -29,6 +30,17 @@ METRICS = ("depth_l1_m", "depth_psnr_db", "depth_l1_m_on_hits", "hit_fraction", 
 
 class Refused(RuntimeError):
     """The entry point refused its input (exit status 2): the message is its one line."""
+    outcome = "refused"
+
+    def __init__(self, message: str, times: dict | None = None):
+        super().__init__(message)
+        self.times = times or {}
+
+
+class NoSurface(Refused):
+    """The fit ran but its field has no surface at the mesh level (e.g. still empty after a short budget):
+    there is no mesh to evaluate (every test-view ray would miss)."""
+    outcome = "no_surface"
 
 
 TIMES = ("wall_s", "cpu_s", "peak_rss_mb")
@@ -40,9 +52,16 @@ def row(method: str, scene: str, result: dict, fields=METRICS, **extra) -> dict:
             **{k: result.get(k) for k in fields}}
 
 
-def refused_row(method: str, scene: str, exc: Exception, **extra) -> dict:
-    """The row of a run the entry point refused: no times, no metrics, its message."""
-    return {"method": method, "scene": scene, **dict.fromkeys(TIMES), **extra, "refused": str(exc)}
+def refused_row(method: str, scene: str, exc: Refused, times: dict | None = None, **extra) -> dict:
+    """The row of a refused run (or one without a surface): its times if it ran, no metrics, and its message
+    under 'refused' or 'no_surface'."""
+    times = exc.times if times is None else times
+    return {"method": method, "scene": scene, **{k: times.get(k) for k in TIMES}, **extra, exc.outcome: str(exc)}
+
+
+def failure(row: dict) -> str | None:
+    """'refused' / 'no surface' for a row refused_row made, else None (what a table shows instead of numbers)."""
+    return "refused" if row.get("refused") else "no surface" if row.get("no_surface") else None
 
 
 def _fresh(path: Path) -> Path:
@@ -57,6 +76,7 @@ def _run(ctx, args, timeout):
         return ctx.run_cli(args, timeout=timeout)
     except CliError as exc:
         if exc.returncode == 2:
+            ctx.log(f"  -> refused: {exc.last_line}")
             raise Refused(exc.last_line or "refused (exit 2)") from None
         raise
 
@@ -108,7 +128,9 @@ def fit(ctx, source, out, dataset=None, mode="fast", steps=None, max_seconds=Non
     report = json.loads((fit_dir / "fit.json").read_text())
     mesh = _mesh_in(fit_dir)
     if mesh is None:        # an empty field exports no mesh: every test-view ray misses
-        raise Refused(f"fit wrote no mesh ({report.get('mesh_error', 'no surface at the mesh level')})")
+        ctx.log(f"  -> {out}: {run.wall_s:.1f} s ({report.get('steps')} steps), no surface to evaluate")
+        raise NoSurface(f"fit wrote no mesh ({report.get('mesh_error', 'no surface at the mesh level')})",
+                        {**run.times(), "steps": report.get("steps")})
     metrics = evaluate(ctx, mesh, dataset or source, f"{out}-eval", timeout=timeout)
     _log_result(ctx, out, run, metrics, f"{report.get('steps')} steps, {report.get('stopped')}")
     return {**run.times(), "steps": report.get("steps"), "stopped": report.get("stopped"),

@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-import json
 import pkgutil
-import typing
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
+
+from torch_recon.contract.errors import SettingsError  # noqa: F401 (re-export: the harness CLI catches it)
+from torch_recon.contract.settings import parse_assignments, with_values
 
 
 @dataclass(frozen=True)
@@ -35,65 +36,13 @@ class Suite:
         return apply_overrides(self.quick if quick else self.full, overrides)
 
 
-class SettingsError(ValueError):
-    """A --set override that names no field or whose value does not fit the field's type."""
-
-
 def apply_overrides(settings, overrides):
-    """A copy of the dataclass `settings` with each 'key=value' applied. Values are JSON when they parse
-    as JSON (numbers, lists, true/false/null), else strings; then checked against the field's type."""
+    """A copy of the dataclass `settings` with each 'key=value' applied, each value type-checked by the
+    project's one settings mechanism (torch_recon/contract/settings.py): 'n=3', 'levels=[1,3]' or
+    'levels=1,3', 'budget_s=none'. A bad key or value raises SettingsError naming it."""
     if not dataclasses.is_dataclass(settings):
         raise TypeError(f"suite settings must be a dataclass instance, got {type(settings).__name__}")
-    hints = typing.get_type_hints(type(settings))
-    changes = {}
-    for item in overrides:
-        key, sep, text = item.partition("=")
-        if not sep or key not in hints:
-            raise SettingsError(f"--set {item}: expected KEY=VALUE with KEY one of "
-                                f"{', '.join(f.name for f in dataclasses.fields(settings))}")
-        try:
-            value = json.loads(text)
-        except json.JSONDecodeError:
-            value = text
-        changes[key] = _coerce(key, value, hints[key])
-    return dataclasses.replace(settings, **changes)
-
-
-def _coerce(key, value, hint):
-    """`value` as the field type `hint` (int, float, str, bool, tuple/list of those, Optional of those)."""
-    origin, args = typing.get_origin(hint), typing.get_args(hint)
-    if origin in (typing.Union, getattr(__import__("types"), "UnionType", ())):
-        if value is None and type(None) in args:
-            return None
-        for a in args:
-            if a is type(None):
-                continue
-            try:
-                return _coerce(key, value, a)
-            except SettingsError:
-                pass
-        raise SettingsError(f"--set {key}: {value!r} does not fit {hint}")
-    if origin in (tuple, list):
-        items = value if isinstance(value, list) else [value]
-        inner = args[0] if args else typing.Any
-        out = [_coerce(key, v, inner) for v in items]
-        return tuple(out) if origin is tuple else out
-    if hint is typing.Any:
-        return value
-    if hint is bool:
-        if isinstance(value, bool):
-            return value
-    elif hint is float:
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
-            return float(value)
-    elif hint is int:
-        if isinstance(value, int) and not isinstance(value, bool):
-            return value
-    elif hint is str:
-        return value if isinstance(value, str) else json.dumps(value)
-    elif isinstance(hint, type) and isinstance(value, hint):
-        return value
-    raise SettingsError(f"--set {key}: expected {getattr(hint, '__name__', hint)}, got {value!r}")
+    return with_values(settings, parse_assignments(overrides))
 
 
 SUITES_PACKAGE = "benchmarks.suites"

@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from benchmarks.harness import Suite, runners
+from benchmarks.harness.report import fmt
 from benchmarks.suites.ablations import Settings, dataset, fit_row
 
 # log-spaced: two-bounce intensity falls off steeply (1/r^2, grazing cosines), so lit pixels reach
@@ -103,7 +104,7 @@ def run(s: Settings, ctx) -> list[dict]:
     table = threshold_table(spot_intensities(load_dataset(data0), meas0), masks_of(meas0)[2], ref)
     threshold = best_threshold(table)["threshold"]
     ctx.log("  intensity ratio threshold on ambient 0 (F1 vs reference): "
-            + ", ".join(f"{r['threshold']:g}:{r['shadow_f1']}" for r in table) + f" -> {threshold:g}")
+            + ", ".join(f"{r['threshold']:g}:{fmt(r['shadow_f1'], '.3f')}" for r in table) + f" -> {threshold:g}")
     rows = []
     for amb in map(float, s.levels):
         common = {"ambient_per_bin": amb}
@@ -132,7 +133,7 @@ def run(s: Settings, ctx) -> list[dict]:
             rgb = apply_intensity_shadows(meas, sh)
             # the best any ratio threshold could do at this level (chosen on the reference: a bound, not a result)
             oracle = best_threshold(threshold_table(image, excluded, ref))
-            rows.append(fit_row(ctx, s, f"ambient {amb:g}, {variant}", data, prep, f"amb{amb:g}-{variant[:14]}",
+            rows.append(fit_row(ctx, s, f"ambient {amb:g}, {variant}", data, prep, f"amb{amb:g}-{'rgb' if variant == 'intensity shadows' else 'rgb-laser-off'}",
                                 transform=lambda _m, m=rgb: m, variant=variant, gate_bins=0, **common,
                                 ratio_threshold=threshold, intensity_unlabelled_pixels=int((~labelled).sum()),
                                 oracle_ratio_threshold=oracle["threshold"], oracle_shadow_f1=oracle["shadow_f1"],
@@ -144,8 +145,8 @@ def run(s: Settings, ctx) -> list[dict]:
 def _cell(r):
     if r is None:
         return "-"
-    if r.get("refused"):
-        return "refused"
+    if runners.failure(r):
+        return runners.failure(r)
     f1 = "-" if r.get("shadow_f1") is None else f"{r['shadow_f1']:.2f}"
     return f"{r['depth_l1_m']:.3f} m (F1 {f1})"
 

@@ -26,7 +26,6 @@ import numpy as np
 from benchmarks.harness import Refused, Suite, report, runners
 from benchmarks.harness.datasets import integrated_dataset
 
-PAPER_SPOTS = {16: 0.0862, 8: 0.0912, 4: 0.1347, 2: 0.2147}
 FIELDS = ("depth_l1_m", "depth_psnr_db", "chamfer_m", "fscore", "steps")
 
 
@@ -63,8 +62,8 @@ def fit_row(ctx, s: Settings, level, data, prep: dict, tag: str, transform=None,
         r = runners.fit(ctx, source, tag, dataset=data, steps=s.steps, max_seconds=s.budget_s,
                         sets=(f"fast.resolution={s.grid}", f"fast.coarse_resolution={max(8, s.grid // 2)}"))
     except Refused as exc:
-        ctx.log(f"    {level!s:>24}  refused: {exc}")
-        return {**runners.row("fast", s.example, prep, ("depth_l1_m", "depth_psnr_db"), **info), "refused": str(exc)}
+        return runners.refused_row("fast", s.example, exc, runners.combined(prep, exc.times) if exc.times else prep,
+                                   **info)
     row = runners.row("fast", s.example, {**r, **runners.combined(prep, r)}, FIELDS, **info,
                       preprocess_wall_s=prep["wall_s"])
     return row
@@ -88,7 +87,14 @@ def spots(s: Settings, ctx) -> list[dict]:
             return m
         return subset
     return [fit_row(ctx, s, int(k), data, prep, f"spots{k}", transform=keep(int(k)),
-                    paper_depth_l1_m=PAPER_SPOTS.get(int(k))) for k in s.levels]
+                    paper_depth_l1_m=paper_l1(int(k))) for k in s.levels]
+
+
+def paper_l1(spots: int):
+    try:
+        return report.paper_result(spots)["depth_l1_m"]
+    except KeyError:        # the paper reports 16 / 8 / 4 / 2 spots only
+        return None
 
 
 def shadow(s: Settings, ctx) -> list[dict]:
@@ -117,7 +123,7 @@ def plot(rows, settings, path):
 
 
 def readme(results) -> str:
-    rows = [{**r, "level": str(r["level"]), "depth_l1_m": "refused" if r.get("refused") else r.get("depth_l1_m")}
+    rows = [{**r, "level": str(r["level"]), "depth_l1_m": runners.failure(r) or r.get("depth_l1_m")}
             for r in results["rows"]]
     cols = [("level", "level"), ("depth_l1_m", "depth L1 m"), ("depth_psnr_db", "PSNR dB"), ("steps", "steps"),
             ("wall_s", "wall s", ".1f"), ("signal_fraction", "signal fraction", ".2f")]

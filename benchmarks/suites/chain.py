@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from benchmarks.harness import Suite, report, runners
 from benchmarks.harness.datasets import simulate_cli
 
-PAPER = {"depth_l1_m": 0.0862, "depth_psnr_db": 26.58}
 FIELDS = ("evaluate_wall_s", "steps", "depth_l1_m", "depth_psnr_db", "chamfer_m", "fscore", "n_test_views")
 
 
@@ -44,12 +43,12 @@ def run(s: Settings, ctx) -> list[dict]:
 
 def plot(rows, settings, path):
     report.plot_rows(rows, path, y="depth_l1_m", label=lambda r: f"fast, {r['resolution']} px",
-                     title=f"{settings.example}, Cycles-simulated, 16 spots; paper L1 {PAPER['depth_l1_m']} m")
+                     hline=report.paper_line(), title=f"{settings.example}, Cycles-simulated, 16 spots")
 
 
 def readme(results) -> str:
     rows = [{**r, "sensor": f"{r['resolution']} x {r['resolution']}"} for r in results["rows"]]
-    rows.append({"sensor": "paper (PlatoNeRF, 512 x 512, 200k steps on a GPU)", "wall_s": "hours", **PAPER})
+    rows.append({"sensor": "paper (PlatoNeRF, 512 x 512, 200k steps on a GPU)", "wall_s": "hours", **report.paper_result()})
     return report.markdown_table(rows, [("sensor", "sensor"), ("wall_s", "fast-mode fit (wall s, incl. preprocessing)", ".1f"),
                                         ("peak_rss_mb", "peak RSS (MB)", ".0f"), ("depth_l1_m", "depth L1 (m)", ".4f"),
                                         ("depth_psnr_db", "PSNR (dB)", ".2f"), ("chamfer_m", "Chamfer (m)", ".4f"),

@@ -16,7 +16,6 @@ from dataclasses import dataclass
 
 from benchmarks.harness import Refused, Suite, report, runners
 
-PAPER = {"depth_l1_m": 0.0862, "depth_psnr_db": 26.58}
 
 
 @dataclass(frozen=True)
@@ -53,21 +52,21 @@ def run(s: Settings, ctx) -> list[dict]:
             try:
                 r = runners.baseline(ctx, data, tag, grid_search=True) if kw is None else runners.fit(ctx, data, tag, **kw)
             except Refused as exc:
-                ctx.log(f"  {scene} {label}: refused: {exc}")
-                rows.append(runners.refused_row(method, scene, exc, label=label))
+                rows.append(runners.refused_row(method, scene, exc, label=label, steps=exc.times.get("steps")))
                 continue
             rows.append(runners.row(method, scene, r, ("steps", *runners.METRICS), label=label,
                                     resolution=s.resolution))
+    paper_l1 = report.paper_result()["depth_l1_m"]
     for r in rows:          # the first (cheapest) run of the same method and scene at or below the paper's L1
         hits = [q["wall_s"] for q in rows if q["scene"] == r["scene"] and q["method"] == r["method"]
-                and q.get("depth_l1_m") is not None and q["depth_l1_m"] <= PAPER["depth_l1_m"]]
+                and q.get("depth_l1_m") is not None and q["depth_l1_m"] <= paper_l1]
         r["time_to_paper_l1_s"] = min(hits) if hits else None
     return rows
 
 
 def plot(rows, settings, path):
     report.plot_rows(rows, path, y="depth_l1_m", label=lambda r: f"{r['method']} ({r['scene']})",
-                     title=f"{settings.resolution} px, {settings.test_views} test views; paper L1 {PAPER['depth_l1_m']} m")
+                     hline=report.paper_line(), title=f"{settings.resolution} px, {settings.test_views} test views")
 
 
 def readme(results) -> str:
@@ -79,8 +78,12 @@ def readme(results) -> str:
         cells = []
         for sc in scenes:
             r = next((q for q in rows if q["label"] == label and q["scene"] == sc), None)
-            if r is None or r.get("refused"):
-                cells.append("-" if r is None else "refused")
+            if r is None:
+                cells.append("-")
+                continue
+            if runners.failure(r):
+                ran = f" after {r['wall_s']:.1f} s ({r['steps']} steps)" if r.get("wall_s") is not None else ""
+                cells.append(runners.failure(r) + ran)
                 continue
             steps = f" ({r['steps']} steps)" if r.get("steps") is not None else ""
             cells.append(f"{r['depth_l1_m']:.4f} m / {r['depth_psnr_db']:.2f} dB / {r['wall_s']:.1f} s{steps}")

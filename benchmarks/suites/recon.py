@@ -16,7 +16,6 @@ from dataclasses import dataclass
 
 from benchmarks.harness import Refused, Suite, report, runners
 
-PAPER = {"depth_l1_m": 0.0862, "depth_psnr_db": 26.58}
 VARIANTS = {"fast, init only": ("steps=0", "fast.coarse_fraction=0"),
             "fast, no carving": ("fast.carve_min_lit=1000000",),
             "fast, no pruning": ("fast.occupancy_threshold=-1",)}
@@ -63,7 +62,7 @@ def run(s: Settings, ctx) -> list[dict]:
         try:
             r = runners.fit(ctx, source, tag, dataset=data, **kw)
         except Refused as exc:
-            rows.append(runners.refused_row(method, "cave-chair", exc, label=label))
+            rows.append(runners.refused_row(method, "cave-chair", exc, label=label, steps=exc.times.get("steps")))
             continue
         rows.append(runners.row(method, "cave-chair", r, ("steps", "stopped", "train_s", *runners.METRICS),
                                 label=label, resolution=s.resolution, grid=s.grid))
@@ -71,13 +70,15 @@ def run(s: Settings, ctx) -> list[dict]:
 
 
 def readme(results) -> str:
-    return report.markdown_table(results["rows"], [
-        ("label", "run"), ("wall_s", "wall s"), ("steps", "steps"), ("peak_rss_mb", "peak MB"),
+    rows = [{**r, "depth_l1_m": runners.failure(r) or r.get("depth_l1_m")} for r in results["rows"]]
+    return report.markdown_table(rows, [
+        ("label", "run"), ("wall_s", "wall s", ".1f"), ("steps", "steps"), ("peak_rss_mb", "peak MB", ".0f"),
         ("depth_l1_m", "depth L1 m"), ("depth_psnr_db", "PSNR dB"), ("chamfer_m", "Chamfer m"), ("fscore", "F@5cm")])
 
 
 SUITE = Suite("recon", __doc__.splitlines()[0], run=run, readme=readme,
               plot=lambda rows, s, path: report.plot_rows(rows, path, y="depth_l1_m", label="label",
+                                                          hline=report.paper_line(),
                                                           title="cave-chair, ideal measurements"),
               quick=Settings(resolution=32, grid=48, budget_s=30.0, reference_budget_s=15.0, variants=False,
                              test_views=6, test_view_resolution=32),

@@ -35,7 +35,6 @@ def run(s: Settings, ctx) -> list[dict]:
             r = runners.fit(ctx, ds, tag, steps=s.steps, max_seconds=s.max_seconds, sets=(*s.extra, f"{s.key}={v}"),
                             uv=True)     # as a user runs fit: the wall time includes the UV atlas
         except Refused as exc:
-            ctx.log(f"  {tag}: refused: {exc}")
             rows.append(runners.refused_row("fast", s.example, exc, key=s.key, value=v))
             continue
         rows.append(runners.row("fast", s.example, r, (*runners.METRICS, "steps", "stopped", "train_s"),

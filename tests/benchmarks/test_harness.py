@@ -54,8 +54,10 @@ def test_quick_run_writes_schema_json_and_png(tmp_path):
     assert path.with_suffix(".png").stat().st_size > 1000
 
 
-@pytest.mark.parametrize("override, message", [("nope=1", "KEY one of"), ("n=1.5", "expected int"),
-                                               ("levels=[1,\"a\"]", "expected int"), ("n", "KEY=VALUE")])
+@pytest.mark.parametrize("override, message", [("nope=1", "setting nope: unknown setting"),
+                                               ("n=1.5", "setting n: expected an integer"),
+                                               ("levels=[1,\"a\"]", "setting levels: expected an integer"),
+                                               ("n", "KEY=VALUE")])
 def test_set_refuses_unknown_keys_and_wrong_types(override, message):
     with pytest.raises(SettingsError, match=message):
         FAKE.settings(True, [override])
@@ -158,3 +160,12 @@ def test_runner_turns_exit_2_into_refused_and_other_failures_into_cli_error(tmp_
     assert err.value.returncode == 1
     assert runners.combined({"wall_s": 1, "cpu_s": 2, "peak_rss_mb": 30}, {"wall_s": 3, "cpu_s": 1, "peak_rss_mb": 20}) \
         == {"wall_s": 4, "cpu_s": 3, "peak_rss_mb": 30}
+
+
+def test_every_suites_settings_pass_the_settings_mechanism():
+    """--set on any suite goes through torch_recon/contract/settings.py: its quick/full settings must fit it."""
+    from torch_recon.contract.settings import merged
+
+    for name, suite in all_suites().items():
+        for s in (suite.quick, suite.full):
+            assert merged(s, {}) == s, name

@@ -34,6 +34,11 @@ def run(args) -> int:
     cfg = from_args(FitConfig, args, extra={"progress": False} if args.quiet else None)
     r = fit(args.source, mode=cfg.mode, out=args.out, config=cfg, export=not args.no_mesh, uv=not args.no_uv)
     t = r.train
+    if t.stopped == "interrupted":     # not done: the checkpoint is kept, earlier results are untouched
+        import sys
+        print(f"interrupted at step {t.steps_done}; checkpoint saved in {Path(args.out) / 'checkpoint.pt'} "
+              f"(run the same command again to continue); earlier results left as they were", file=sys.stderr)
+        return 130
     print(f"{r.mode}: {t.steps_done} steps ({t.stopped}), setup {r.setup_seconds:.1f} s, "
           f"training {t.train_seconds:.1f} s, total {r.total_seconds:.1f} s"
           + (f", resumed from step {t.resumed_from}" if t.resumed_from else "")

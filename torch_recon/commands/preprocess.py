@@ -68,8 +68,8 @@ def run(args) -> int:
     settings = cmd.preprocess
     device = resolve_device(cmd.device, cmd.threads)
     out = Path(args.out)
-    if out.suffix != ".npz":
-        raise SettingsError("out", f"expected a .npz file name, got {out}")
+    if out.suffix != ".npz" or out.is_dir():
+        raise SettingsError("out", f"expected a .npz file name, got {out}" + (" (a folder)" if out.is_dir() else ""))
     ds = load_dataset(args.dataset)
     t0 = time.perf_counter()
     meas = preprocess_dataset(ds, settings, device=device, progress=True)

@@ -172,3 +172,19 @@ def paper_test_view_cameras(traj=None, dolly_count: int | None = None,
                            cz + traj.orbit_radius_m * math.sin(a)])
         cams.append(look_at_c2w(paper_to_blender_points(origin), paper_to_blender_points(target), up))
     return np.stack(cams) if cams else np.zeros((0, 4, 4))
+
+
+#: The PlatoNeRF training code's frame from the paper's (Mitsuba) world: a half turn about y.
+#: Their preprocessing writes light origins and aimed-at points in this frame (x and z negated),
+#: and negates rows 0 and 2 of the stored camera pose before casting rays, which lands the
+#: camera in the same frame. Self-inverse.
+PLATONERF_TRAIN_FROM_PAPER = np.diag([-1.0, 1.0, -1.0])
+
+
+def blender_to_platonerf_train_points(p) -> np.ndarray:
+    """Points or directions (..., 3) from Blender's frame to the PlatoNeRF training frame."""
+    return blender_to_paper_points(p) @ PLATONERF_TRAIN_FROM_PAPER.T
+
+
+def platonerf_train_to_blender_points(p) -> np.ndarray:
+    return paper_to_blender_points(_as_points(p) @ PLATONERF_TRAIN_FROM_PAPER.T)

@@ -69,6 +69,8 @@ class ExampleScene:
     spot_enabled: list = field(default_factory=list)
     lights: list = field(default_factory=list)
     config_overrides: dict = field(default_factory=dict)  # SimulationConfig fields this scene sets
+    objects: dict = field(default_factory=dict)   # label -> part names: the objects that matter (the rest
+                                                  # is the room); Blender collection Objects/<label>
 
     @property
     def has_exact_mesh(self) -> bool:
@@ -171,45 +173,140 @@ def sensor_c2w() -> np.ndarray:
     return look_at_c2w([0.0, 0.0, 0.0], [0.0, 3.0, 0.0], up=(0.0, 0.0, 1.0))
 
 
-def _cave(name, description, parts, **kw) -> ExampleScene:
+def blob(name, base, radius, albedo=OBJECT_ALBEDO, seed=0, subdivisions=3) -> MeshPart:
+    """An organic closed shape: an icosphere with smooth seeded radial bumps, its flattened base at `base`."""
+    import trimesh
+
+    ico = trimesh.creation.icosphere(subdivisions=subdivisions)
+    v = np.asarray(ico.vertices, np.float64)
+    rng = np.random.default_rng(seed)
+    bump = np.zeros(len(v))
+    for _ in range(5):     # a few low-frequency lobes: features a reconstruction can lose
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        bump += rng.uniform(0.1, 0.25) * np.exp(-4.0 * (1.0 - v @ d))
+    v = v * (1.0 + bump)[:, None] * radius
+    v[:, 2] = np.maximum(v[:, 2], -0.8 * radius)          # a flat base to stand on
+    v += np.asarray(base, np.float64) - np.array([0.0, 0.0, v[:, 2].min()])
+    return MeshPart(name, v, np.asarray(ico.faces, np.int64), float(albedo))
+
+
+def floor_lamp(base=(0.9, 3.0), albedo=OBJECT_ALBEDO, prefix="lamp") -> list:
+    """A floor lamp: thin base plate, a 2.5 cm pole, a shade (open box of 1 cm panels) held by a thin bar."""
+    x, y = base
+    r, t = 0.0125, 0.01
+    h0, h1, w = -0.5, -0.2, 0.2
+    parts = [box(f"{prefix}_base", (x - 0.15, y - 0.15, -2.0), (x + 0.15, y + 0.15, -1.98), albedo),
+             box(f"{prefix}_pole", (x - r, y - r, -1.98), (x + r, y + r, -0.33), albedo),
+             box(f"{prefix}_bar", (x - w + t, y - r, -0.35), (x + w - t, y + r, -0.33), albedo)]
+    parts += [box(f"{prefix}_shade_front", (x - w, y - w, h0), (x + w, y - w + t, h1), albedo),
+              box(f"{prefix}_shade_back", (x - w, y + w - t, h0), (x + w, y + w, h1), albedo),
+              box(f"{prefix}_shade_left", (x - w, y - w + t, h0), (x - w + t, y + w - t, h1), albedo),
+              box(f"{prefix}_shade_right", (x + w - t, y - w + t, h0), (x + w, y + w - t, h1), albedo)]
+    return parts
+
+
+def side_table(centre=(-0.6, 2.8), albedo=OBJECT_ALBEDO, prefix="table") -> list:
+    """A table with four 2 cm legs (about one sensor pixel wide at 128 x 128 from 3 m)."""
+    x, y = centre
+    leg, hw, hd, top = 0.02, 0.35, 0.25, -1.35
+    parts = [box(f"{prefix}_top", (x - hw, y - hd, top), (x + hw, y + hd, top + 0.03), albedo)]
+    for i, (sx, sy) in enumerate(((-1, -1), (1, -1), (1, 1), (-1, 1))):
+        lx, ly = x + sx * (hw - 0.03), y + sy * (hd - 0.03)
+        parts.append(box(f"{prefix}_leg{i}", (lx - leg / 2, ly - leg / 2, -2.0), (lx + leg / 2, ly + leg / 2, top),
+                         albedo))
+    return parts
+
+
+def _labels(parts, prefix_to_label: dict) -> dict:
+    """label -> names of the parts whose name starts with one of the label's prefixes."""
+    out = {}
+    for prefix, label in prefix_to_label.items():
+        names = [p.name for p in parts if p.name.startswith(prefix)]
+        if names:
+            out.setdefault(label, []).extend(names)
+    return out
+
+
+def _cave(name, description, parts, labels=None, **kw) -> ExampleScene:
     targets, enabled = paper_spots()
-    return ExampleScene(name, description, parts, sensor_c2w(), spot_targets=targets, spot_enabled=enabled, **kw)
+    return ExampleScene(name, description, parts, sensor_c2w(), spot_targets=targets, spot_enabled=enabled,
+                        objects=_labels(parts, labels or {}), **kw)
+
+
+CHAIR = {"chair_": "chair"}
 
 
 def cave_chair() -> ExampleScene:
-    return _cave("cave-chair", "the paper's room with a procedural chair", room_walls() + chair())
+    # the paper's 139 test views stay this room's views (comparable with the paper's figures)
+    return _cave("cave-chair", "the paper's room with a procedural chair", room_walls() + chair(), CHAIR,
+                 config_overrides={"test_view_trajectory": "paper"})
 
 
 def monkey() -> ExampleScene:
     parts = room_walls() + [box("pedestal", (-0.2, 2.8, -2.0), (0.2, 3.2, -1.6), OBJECT_ALBEDO),
                             BlenderPrimitive("monkey", "monkey", (0.0, 3.0, -1.15), 0.5, 2, OBJECT_ALBEDO)]
-    return _cave("monkey", "a subdivided Suzanne on a pedestal in the paper's room", parts)
+    return _cave("monkey", "a subdivided Suzanne on a pedestal in the paper's room", parts,
+                 {"pedestal": "pedestal", "monkey": "monkey"})
 
 
 def occluders() -> ExampleScene:
     parts = room_walls() + [box("occluder_front", (-0.45, 2.2, -2.0), (-0.05, 2.5, -0.9), OBJECT_ALBEDO),
                             box("occluder_back", (-0.2, 3.0, -2.0), (0.7, 3.4, -1.2), OBJECT_ALBEDO)]
-    return _cave("occluders", "a tall box partly hiding a wide box", parts)
+    return _cave("occluders", "a tall box partly hiding a wide box", parts,
+                 {"occluder_front": "occluder_front", "occluder_back": "occluder_back"})
+
+
+def organic_occluded() -> ExampleScene:
+    parts = room_walls() + [box("occluder", (-0.5, 2.1, -2.0), (0.05, 2.35, -1.1), OBJECT_ALBEDO),
+                            blob("blob", (0.05, 3.0, -2.0), 0.32, seed=3)]
+    return _cave("organic-occluded", "an organic shape (a lumpy blob) half hidden behind a box", parts,
+                 {"occluder": "occluder", "blob": "blob"})
+
+
+def thin_structures() -> ExampleScene:
+    parts = room_walls() + floor_lamp() + side_table()
+    return _cave("thin-structures", "a floor lamp (2.5 cm pole, thin shade) and a table on 2 cm legs", parts,
+                 {"lamp_": "lamp", "table_": "table"})
 
 
 def curved_wall_scene() -> ExampleScene:
     parts = room_walls(back_wall=False) + [curved_wall()] + chair()
-    return _cave("curved-wall", "the chair in front of a concave back wall", parts)
+    return _cave("curved-wall", "the chair in front of a concave back wall", parts, CHAIR)
 
 
 def low_albedo() -> ExampleScene:
     return _cave("low-albedo", "the chair room with dark (albedo 0.1) walls",
-                 room_walls(albedo=0.1) + chair(albedo=0.3))
+                 room_walls(albedo=0.1) + chair(albedo=0.3), CHAIR)
+
+
+def dark_room() -> ExampleScene:
+    parts = room_walls(albedo=0.15) + chair() + [box("box", (0.5, 2.4, -2.0), (1.0, 2.9, -1.6), OBJECT_ALBEDO)]
+    return _cave("dark-room", "dark walls (albedo 0.15) around the chair and a low box", parts,
+                 {"chair_": "chair", "box": "box"})
+
+
+def outside_fov() -> ExampleScene:
+    # a column beside the sensor, outside its 90 degree view (x > y everywhere on it); with a co-located
+    # laser whose spots the sensor must see, no lit segment crosses it (the view is convex): it is the
+    # scene that shows what a method invents or leaves out where no measurement constrains anything
+    parts = room_walls() + chair() + [box("column", (1.3, 0.4, -2.0), (1.7, 0.8, 0.5), OBJECT_ALBEDO)]
+    return _cave("outside-fov", "the chair, and a column beside the sensor outside its field of view", parts,
+                 {"chair_": "chair", "column": "column"})
 
 
 def ambient() -> ExampleScene:
     return _cave("ambient", "the chair room lit by a ceiling area light (ambient background)",
-                 room_walls() + chair(), lights=[AreaLight("ambient_light", (0.0, 2.0, 1.95), 1.0, 200.0)],
+                 room_walls() + chair(), CHAIR, lights=[AreaLight("ambient_light", (0.0, 2.0, 1.95), 1.0, 200.0)],
                  config_overrides={"ambient_per_bin": 0.05, "photon_counts": True})
 
 
 EXAMPLES = {"cave-chair": cave_chair, "monkey": monkey, "occluders": occluders,
-            "curved-wall": curved_wall_scene, "low-albedo": low_albedo, "ambient": ambient}
+            "curved-wall": curved_wall_scene, "low-albedo": low_albedo, "ambient": ambient,
+            "organic-occluded": organic_occluded, "thin-structures": thin_structures, "dark-room": dark_room,
+            "outside-fov": outside_fov}
+#: the scenes the object benchmark measures on (labelled objects, exact bpy-free meshes except monkey)
+OBJECT_SCENES = ("cave-chair", "organic-occluded", "thin-structures", "curved-wall", "dark-room", "outside-fov")
 
 
 def example(name: str) -> ExampleScene:

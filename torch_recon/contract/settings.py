@@ -42,6 +42,7 @@ class Spec:
     range: tuple | None = None  # (lo, hi), either may be None; inclusive
     unit: str = ""
     flags: tuple = ()           # extra option strings
+    item: type | None = None    # element type of a tuple[X, ...] / list[X]
 
     @property
     def is_section(self) -> bool:
@@ -72,15 +73,16 @@ def _comments(cls) -> dict:
 
 
 def _kind(tp):
-    """(base type, optional) of an annotation."""
+    """(base type, optional, element type) of an annotation."""
     origin = typing.get_origin(tp)
     if origin in (typing.Union, types.UnionType):
         args = [a for a in typing.get_args(tp) if a is not type(None)]
-        base, _ = _kind(args[0]) if len(args) == 1 else (object, False)
-        return base, True
+        base, _, item = _kind(args[0]) if len(args) == 1 else (object, False, None)
+        return base, True, item
     if origin in (tuple, list):
-        return origin, False
-    return tp, False
+        items = [a for a in typing.get_args(tp) if a is not Ellipsis]
+        return origin, False, (items[0] if len(set(items)) == 1 and isinstance(items[0], type) else None)
+    return tp, False, None
 
 
 @lru_cache(maxsize=None)
@@ -93,14 +95,14 @@ def specs(cls, prefix: str = "") -> tuple:
     for f in dataclasses.fields(cls):
         if not f.init:
             continue
-        kind, optional = _kind(hints[f.name])
+        kind, optional, item = _kind(hints[f.name])
         default = f.default if f.default is not dataclasses.MISSING else \
             (f.default_factory() if f.default_factory is not dataclasses.MISSING else None)
         m = {**meta.get(f.name, {}), **f.metadata}
         choices = m.get("choices")
         out.append(Spec(key=prefix + f.name, name=f.name, kind=kind, optional=optional, default=default,
                         help=m.get("help", notes.get(f.name, "")), choices=tuple(choices) if choices else None,
-                        range=m.get("range"), unit=m.get("unit", ""), flags=tuple(m.get("flags", ()))))
+                        range=m.get("range"), unit=m.get("unit", ""), flags=tuple(m.get("flags", ())), item=item))
     return tuple(out)
 
 
@@ -129,7 +131,7 @@ def find_spec(cls, key: str) -> Spec:
 
 # -- values ---------------------------------------------------------------------------------------------
 _TYPE_WORDS = {int: "an integer", float: "a float", bool: "true or false", str: "a string",
-               tuple: "a list of numbers", list: "a list"}
+               tuple: "a list", list: "a list"}
 
 
 def check_value(spec: Spec, value):
@@ -162,6 +164,9 @@ def check_value(spec: Spec, value):
     elif kind in (tuple, list):
         if not isinstance(value, (list, tuple)):
             raise bad
+        if spec.item is not None:
+            each = dataclasses.replace(spec, kind=spec.item, item=None, optional=False, choices=None)
+            value = [check_value(each, v) for v in value]
         value = kind(value)
     if spec.choices is not None and value not in spec.choices:
         raise SettingsError(spec.key, f"expected one of {', '.join(map(str, spec.choices))}, got {value!r}")
@@ -191,8 +196,10 @@ def _parse_text(spec: Spec, text: str):
         if spec.kind is float:
             return float(t)
         if spec.kind in (tuple, list):
-            v = json.loads(t) if t.startswith("[") else [float(x) for x in t.split(",")]
-            return v
+            if t.startswith("["):
+                return json.loads(t)
+            parts = [x.strip() for x in t.split(",")] if t else []
+            return parts if spec.item is not None else [float(x) for x in parts]
     except ValueError:
         raise SettingsError(spec.key, f"expected {_TYPE_WORDS.get(spec.kind, spec.kind.__name__)}, got {text!r}") \
             from None

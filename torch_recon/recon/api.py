@@ -23,10 +23,12 @@ from ..measurements import Measurements
 from .config import FitConfig
 from .data import build_ray_data
 from .models import build_model
-from .trainer import TrainResult, train
+from .trainer import CHECKPOINT_NAME, TrainResult, train
 
 VOLUME_NAME = "volume.npz"
 REPORT_NAME = "fit.json"
+#: top-level names fits of earlier versions wrote (they kept no record); everything else in --out is the user's
+FIT_ENTRIES = (VOLUME_NAME, REPORT_NAME, "mesh.*", "*.tmp", "*.tmp.npz")
 
 
 @dataclass
@@ -77,8 +79,9 @@ def measurements_hash(meas: Measurements) -> str:
     return "measurements:" + h.hexdigest()
 
 
-def load_source(source, progress: bool = True):
-    """Measurements and a hash naming the data: from a Measurements, a .npz, or a dataset directory."""
+def load_source(source, progress: bool = True, device="cpu"):
+    """Measurements and a hash naming the data: from a Measurements, a .npz, or a dataset directory
+    (preprocessed, visible depth included, with torch on `device`)."""
     if isinstance(source, Measurements):
         return source, measurements_hash(source)
     path = Path(source)
@@ -94,7 +97,7 @@ def load_source(source, progress: bool = True):
     from ..preprocess import preprocess_dataset
 
     ds = load_dataset(path)
-    meas = preprocess_dataset(ds)
+    meas = preprocess_dataset(ds, device=device)
     return meas, "dataset:" + ds.content_hash()
 
 
@@ -107,18 +110,32 @@ def fit(source, mode: str | None = None, out=None, config: FitConfig | None = No
         cfg = FitConfig.from_dict({**cfg.to_dict(), "mode": mode})
     torch.manual_seed(cfg.seed)
     dev = resolve_device(cfg.device, cfg.threads)
-    meas, src_hash = load_source(source, cfg.progress)
+    meas, src_hash = load_source(source, cfg.progress, dev)   # the setup runs on the fit's device too
     data = build_ray_data(meas).to(dev)     # refuses unusable measurements before anything is written
+    stage = None
+    if out is not None:     # results are staged and swapped in whole; the checkpoint lives in the target
+        from ..contract.dataset.staging import StagedDir
+        stage = StagedDir(out, "fit", legacy=FIT_ENTRIES, marker=REPORT_NAME, keep=(CHECKPOINT_NAME,))
+    try:
+        return _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, export, fault_hook,
+                              stop_after, uv)
+    finally:
+        if stage is not None:
+            stage.discard()
+
+
+def _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, export, fault_hook, stop_after, uv):
     out_dir = None
-    if out is not None:
-        out_dir = Path(out)
+    if stage is not None:
+        out_dir = stage.target
         out_dir.mkdir(parents=True, exist_ok=True)
     gen = torch.Generator(device=dev)
     gen.manual_seed(cfg.seed)
     meta = {"camera_to_world": np.asarray(meas.camera_to_world), "fov_rad": meas.fov_rad, "fov_axis": meas.fov_axis}
     model = build_model(data, cfg, meta, gen)
     setup = time.perf_counter() - t_start
-    tr = train(model, data, cfg, gen, out_dir, on_eval=on_eval, fault_hook=fault_hook, stop_after=stop_after)
+    tr = train(model, data, cfg, gen, out_dir, on_eval=on_eval, fault_hook=fault_hook, stop_after=stop_after,
+               data_key=src_hash)
     vol, lo, hi = model.density_volume()
     result = FitResult(mode=cfg.mode, model=model, train=tr, setup_seconds=setup, total_seconds=0.0,
                        volume=vol, bbox_min=lo, bbox_max=hi, level=cfg.mesh_level, source_hash=src_hash,
@@ -127,26 +144,34 @@ def fit(source, mode: str | None = None, out=None, config: FitConfig | None = No
                        "device": str(dev), "steps": tr.steps_done, "stopped": tr.stopped,
                        "setup_seconds": round(setup, 3), "train_seconds": round(tr.train_seconds, 3),
                        "nan_restores": tr.nan_restores, "resumed_from": tr.resumed_from}
-    if out_dir is not None:
-        tmp = out_dir / (VOLUME_NAME + ".tmp.npz")
-        np.savez_compressed(tmp, opacity=vol.astype(np.float32), bbox_min=lo, bbox_max=hi, level=cfg.mesh_level)
-        tmp.replace(out_dir / VOLUME_NAME)
+    if hasattr(model, "reinit_steps"):
+        result.metadata["reinitialised_after_steps"] = list(model.reinit_steps)
+    if stage is not None and tr.stopped == "interrupted":
+        # Ctrl-C / SIGTERM: the checkpoint is saved for a resume; the previous results stay as they were
+        result.total_seconds = time.perf_counter() - t_start
+        return result
+    if stage is not None:
+        staged = stage.path
+        np.savez_compressed(staged / VOLUME_NAME, opacity=vol.astype(np.float32), bbox_min=lo, bbox_max=hi,
+                            level=cfg.mesh_level)
         if export:
             result.metadata["run_seconds"] = round(time.perf_counter() - t_start, 3)
             from ..mesh_export import MeshExportError
 
             try:
-                result.mesh_files, result.mesh = export_volume(vol, lo, hi, cfg.mesh_level, out_dir / "mesh",
-                                                               result.metadata, uv=uv)
+                files, result.mesh = export_volume(vol, lo, hi, cfg.mesh_level, staged / "mesh",
+                                                   result.metadata, uv=uv)
+                result.mesh_files = {k: stage.final(v) for k, v in files.items()}
             except MeshExportError as exc:      # e.g. an early stop with nothing occupied yet
                 result.metadata["mesh_error"] = str(exc)
                 warnings.warn(f"no mesh written: {exc}", RuntimeWarning, stacklevel=2)
     result.total_seconds = time.perf_counter() - t_start
     result.metadata["run_seconds"] = round(result.total_seconds, 3)
-    if out_dir is not None:
+    if stage is not None:
         report = {**result.metadata, "mesh_files": {k: str(v) for k, v in result.mesh_files.items()},
                   "history_tail": tr.history[-5:]}
-        (out_dir / REPORT_NAME).write_text(json.dumps(report, indent=2, default=str) + "\n")
+        (stage.path / REPORT_NAME).write_text(json.dumps(report, indent=2, default=str) + "\n")
+        stage.commit()      # volume, mesh files and fit.json replace the previous ones together
     return result
 
 

@@ -12,7 +12,6 @@ import numpy as np
 import torch
 
 from ..contract.errors import MeasurementsError, UnconstrainedMeasurementsError  # noqa: F401 (Unconstrained...: re-export)
-from ..contract.frames import pixel_rays
 from ..measurements import Measurements
 
 
@@ -75,7 +74,7 @@ def build_ray_data(meas: Measurements) -> RayData:
     if not meas.spots:
         raise UnconstrainedMeasurementsError("measurements: no spots")
     h, w = meas.height, meas.width
-    _, dirs = pixel_rays(meas.camera_to_world, w, h, meas.fov_rad, meas.fov_axis)
+    dirs = meas.pixel_directions()
     c = np.asarray(meas.sensor_origin, np.float64)
     o = np.asarray(meas.laser_origin, np.float64)
     pix, spt, path, lit, shd, ls = [], [], [], [], [], []

@@ -45,16 +45,24 @@ def _config_key(cfg: FitConfig) -> dict:
     return d
 
 
-def save_checkpoint(path: Path, model, gen: torch.Generator, step: int, cfg: FitConfig, result: TrainResult):
+def save_checkpoint(path: Path, model, gen: torch.Generator, step: int, cfg: FitConfig, result: TrainResult,
+                    data_key: str | None = None):
     tmp = path.with_name(path.name + ".tmp")
     torch.save({"step": step, "model": model.state_dict(), "generator": gen.get_state(),
-                "config": _config_key(cfg), "history": result.history, "train_seconds": result.train_seconds},
-               tmp)
+                "config": _config_key(cfg), "history": result.history, "train_seconds": result.train_seconds,
+                "data": data_key}, tmp)
     tmp.replace(path)
 
 
-def load_checkpoint(path: Path, model, gen: torch.Generator, cfg: FitConfig):
-    ck = torch.load(path, map_location="cpu", weights_only=False)
+def load_checkpoint(path: Path, model, gen: torch.Generator, cfg: FitConfig, data_key: str | None = None):
+    try:
+        ck = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # noqa: BLE001 - torch/pickle raise many kinds for a damaged file
+        raise CheckpointError(f"{path}: unreadable checkpoint ({type(exc).__name__}); remove it or pass "
+                              f"--no-resume") from None
+    if data_key is not None and ck.get("data") != data_key:
+        raise CheckpointError(f"{path}: checkpoint was made from other data than this source; use another --out "
+                         f"or pass --no-resume to start afresh")
     if ck.get("config") != _config_key(cfg):
         raise CheckpointError(f"{path}: checkpoint was written with other settings; remove it or pass --no-resume")
     model.load_state_dict(ck["model"])
@@ -89,7 +97,7 @@ def _snapshot(model):
 
 
 def train(model, data, cfg: FitConfig, gen: torch.Generator, out_dir=None, on_eval=None,
-          fault_hook=None, stop_after: int | None = None) -> TrainResult:
+          fault_hook=None, stop_after: int | None = None, data_key: str | None = None) -> TrainResult:
     """Run the optimisation. `on_eval(model, step, seconds)` is called every `cfg.eval_every_s` seconds
     of training (its time is not counted); `fault_hook(step, loss)` lets tests inject a fault;
     `stop_after` ends this call after that many steps (the schedule still spans cfg.total_steps)."""
@@ -101,7 +109,7 @@ def train(model, data, cfg: FitConfig, gen: torch.Generator, out_dir=None, on_ev
     ck_path = Path(out_dir) / CHECKPOINT_NAME if out_dir is not None else None
     start = 0
     if ck_path is not None and cfg.resume and ck_path.is_file():
-        start, res.history, res.train_seconds = load_checkpoint(ck_path, model, gen, cfg)
+        start, res.history, res.train_seconds = load_checkpoint(ck_path, model, gen, cfg, data_key)
         res.resumed_from = start
     good = (_snapshot(model), start)
     best, since, ema = float("inf"), 0, None
@@ -140,6 +148,9 @@ def train(model, data, cfg: FitConfig, gen: torch.Generator, out_dir=None, on_ev
                 if ok:
                     model.optimizer.step()
                     ok = model.params_finite()
+                    # a model may replace its networks after a step (PlatoNeRF's re-initialisation)
+                    if ok and hasattr(model, "after_step") and model.after_step(step + 1):
+                        best, since, ema = float("inf"), 0, None
             if not ok:
                 res.nan_restores += 1
                 msg = (f"non-finite loss/gradient at step {step}: restoring step {good[1]} "
@@ -169,11 +180,12 @@ def train(model, data, cfg: FitConfig, gen: torch.Generator, out_dir=None, on_ev
                 best, since = ema, 0
             else:
                 since += 1
-            if not warm and cfg.plateau_patience > 0 and since >= cfg.plateau_patience:
+            if (not warm and cfg.plateau_patience > 0 and since >= cfg.plateau_patience
+                    and getattr(model, "plateau_stop", True)):
                 res.stopped = "plateau"
                 break
             if ck_path is not None and res.train_seconds - last_ck >= cfg.checkpoint_every_s:
-                save_checkpoint(ck_path, model, gen, step, cfg, res)
+                save_checkpoint(ck_path, model, gen, step, cfg, res, data_key)
                 last_ck = res.train_seconds
             if on_eval is not None and cfg.eval_every_s is not None and res.train_seconds - last_eval >= cfg.eval_every_s:
                 res.evals.append({"step": step, "seconds": res.train_seconds, **on_eval(model, step, res.train_seconds)})
@@ -182,5 +194,5 @@ def train(model, data, cfg: FitConfig, gen: torch.Generator, out_dir=None, on_ev
     pbar.close()
     res.steps_done = step
     if ck_path is not None:
-        save_checkpoint(ck_path, model, gen, step, cfg, res)
+        save_checkpoint(ck_path, model, gen, step, cfg, res, data_key)
     return res

@@ -13,11 +13,14 @@ from typing import Any
 import numpy as np
 
 from ..errors import PlatolidarError
-from ..units import bin_widths_consistent, ps_to_m
+from ..units import MAX_SENSOR_SIDE, bin_widths_consistent, ps_to_m, transient_size_problem
 
 SCHEMA_NAME = "platolidar.dataset"
-SCHEMA_VERSION = "1.0"
-SUPPORTED_VERSIONS = ("1.0",)
+SCHEMA_VERSION = "1.1"
+SUPPORTED_VERSIONS = ("1.0", "1.1")
+#: 1.1 adds measurement-only datasets (``kind``, ``spots[].measurement_file``) and per-pixel
+#: ray directions (``sensor.ray_directions_file``); a manifest without them is written as 1.0.
+KINDS = ("transients", "measurements")
 MANIFEST_NAME = "dataset.json"
 
 
@@ -153,6 +156,8 @@ class SensorSpec:
     bins: int = 391
     start_m: float = 0.0
     time_gate: TimeGate = field(default_factory=TimeGate)
+    ray_directions_file: str | None = None  # 1.1: EXR of per-pixel unit ray directions (X, Y, Z), world
+                                            # frame, from the sensor origin; None = pinhole rays
 
     @property
     def sensor_origin(self) -> np.ndarray:
@@ -180,6 +185,7 @@ class SensorSpec:
             bins=ck.integer(d, "bins", f"{path}.bins", minimum=1),
             start_m=ck.number(d, "start_m", f"{path}.start_m", nonneg=True),
             time_gate=TimeGate.from_dict(ck.get(d, "time_gate", f"{path}.time_gate"), ck, f"{path}.time_gate"),
+            ray_directions_file=ck.string(d, "ray_directions_file", f"{path}.ray_directions_file", default=None),
         )
         if s.fov_rad >= math.pi:
             ck.fail(f"{path}.fov_rad", f"expected a field of view below pi radians, got {s.fov_rad}")
@@ -188,6 +194,9 @@ class SensorSpec:
                                           f"(= {ps_to_m(s.bin_width_ps):.6f} m of optical path)")
         if s.time_gate.enabled and s.time_gate.window_bins > s.bins:
             ck.fail(f"{path}.time_gate.window_bins", f"window of {s.time_gate.window_bins} bins exceeds bins={s.bins}")
+        too_big = transient_size_problem(s.width, s.height, s.bins)   # refused before anything is allocated
+        if too_big:
+            ck.fail(f"{path}.{'width' if max(s.width, s.height) > MAX_SENSOR_SIDE else 'bins'}", too_big)
         return s
 
 
@@ -222,17 +231,21 @@ class NoiseSpec:
 class Spot:
     id: int
     laser_direction: list                 # unit vector from the laser origin, world frame
-    transient_file: str                   # relative to the dataset directory
+    transient_file: str | None            # relative to the dataset directory (None: measurements kind)
     enabled: bool = True
     first_bounce: list | None = None      # l_k when known (world frame, m)
     content_hash: str | None = None       # hash of the simulator inputs that affect this spot
+    measurement_file: str | None = None   # 1.1, measurements kind: EXR of per-pixel path_m / lit / valid
 
     @classmethod
-    def from_dict(cls, d, ck: _Checker, path: str):
+    def from_dict(cls, d, ck: _Checker, path: str, kind: str = "transients"):
         s = cls(
             id=ck.integer(d, "id", f"{path}.id", minimum=0),
             laser_direction=ck.vector(d, "laser_direction", f"{path}.laser_direction"),
-            transient_file=ck.string(d, "transient_file", f"{path}.transient_file"),
+            transient_file=ck.string(d, "transient_file", f"{path}.transient_file",
+                                     **({} if kind == "transients" else {"default": None})),
+            measurement_file=ck.string(d, "measurement_file", f"{path}.measurement_file",
+                                       **({} if kind == "measurements" else {"default": None})),
             enabled=ck.boolean(d, "enabled", f"{path}.enabled", default=True),
             first_bounce=ck.vector(d, "first_bounce", f"{path}.first_bounce", default=None),
             content_hash=ck.string(d, "content_hash", f"{path}.content_hash", default=None),
@@ -240,6 +253,9 @@ class Spot:
         n = np.linalg.norm(s.laser_direction)
         if abs(n - 1.0) > 1e-3:
             ck.fail(f"{path}.laser_direction", f"expected a unit vector, got length {n:.6f}")
+        if kind == "measurements" and s.first_bounce is None:
+            ck.fail(f"{path}.first_bounce", "a measurements dataset has no transients to find l_k in: "
+                                            "expected the first-bounce point")
         return s
 
 
@@ -272,6 +288,8 @@ class GroundTruthViews:
     fov_axis: str
     camera_to_world: list        # list of 4x4
     depth_file: str              # EXR of shape (N*H, W), channel 'range'; inf where nothing is hit
+    trajectory: str | None = None  # 'scene' (dolly + orbit around the objects) or 'paper' (the 139-view preset)
+    n_invalid: int = 0           # requested views dropped because the camera was not in free space
 
     @classmethod
     def from_dict(cls, d, ck: _Checker, path: str):
@@ -284,7 +302,29 @@ class GroundTruthViews:
                    fov_axis=ck.string(d, "fov_axis", f"{path}.fov_axis", choices=("x", "y")),
                    camera_to_world=[ck.matrix4({"m": m}, "m", f"{path}.camera_to_world[{i}]")
                                     for i, m in enumerate(cams)],
-                   depth_file=ck.string(d, "depth_file", f"{path}.depth_file"))
+                   depth_file=ck.string(d, "depth_file", f"{path}.depth_file"),
+                   trajectory=ck.string(d, "trajectory", f"{path}.trajectory", default=None,
+                                        choices=("scene", "paper")),
+                   n_invalid=ck.integer(d, "n_invalid", f"{path}.n_invalid", default=0, minimum=0))
+
+
+@dataclass
+class GroundTruthObject:
+    """One labelled object of the scene (the rest of the GT mesh is the room)."""
+
+    name: str                    # label: a child collection of 'Objects', or an object's name
+    mesh_file: str               # .ply in the world frame (its triangles are also in ground_truth.mesh_file)
+    parts: list = field(default_factory=list)   # Blender object names that make it
+
+    @classmethod
+    def from_dict(cls, d, ck: _Checker, path: str):
+        parts = ck.get(d, "parts", f"{path}.parts", default=[])
+        if not isinstance(parts, list) or not all(isinstance(p, str) for p in parts):
+            ck.fail(f"{path}.parts", f"expected a list of object names, got {parts!r}")
+        name = ck.string(d, "name", f"{path}.name")
+        if not name.strip():
+            ck.fail(f"{path}.name", "expected a non-empty label")
+        return cls(name=name, mesh_file=ck.string(d, "mesh_file", f"{path}.mesh_file"), parts=parts)
 
 
 @dataclass
@@ -292,13 +332,24 @@ class GroundTruth:
     train_depth_file: str | None = None   # EXR (H, W) channel 'range' (m along the pixel ray; inf = no hit)
     mesh_file: str | None = None          # .ply in the world frame
     test_views: GroundTruthViews | None = None
+    objects: list = field(default_factory=list)   # list[GroundTruthObject]: the objects that matter
 
     @classmethod
     def from_dict(cls, d, ck: _Checker, path: str):
         tv = ck.get(d, "test_views", f"{path}.test_views", default=None)
+        objs = ck.get(d, "objects", f"{path}.objects", default=[])
+        if not isinstance(objs, list):
+            ck.fail(f"{path}.objects", "expected a list of objects")
+        objects = [GroundTruthObject.from_dict(o, ck, f"{path}.objects[{i}]") for i, o in enumerate(objs)]
+        seen = set()
+        for i, o in enumerate(objects):
+            if o.name in seen:
+                ck.fail(f"{path}.objects[{i}].name", f"label {o.name!r} appears twice")
+            seen.add(o.name)
         return cls(train_depth_file=ck.string(d, "train_depth_file", f"{path}.train_depth_file", default=None),
                    mesh_file=ck.string(d, "mesh_file", f"{path}.mesh_file", default=None),
-                   test_views=None if tv is None else GroundTruthViews.from_dict(tv, ck, f"{path}.test_views"))
+                   test_views=None if tv is None else GroundTruthViews.from_dict(tv, ck, f"{path}.test_views"),
+                   objects=objects)
 
 
 @dataclass
@@ -338,12 +389,25 @@ class Manifest:
     ground_truth: GroundTruth = field(default_factory=GroundTruth)
     rgb_files: list = field(default_factory=list)   # per spot, optional (PNG/EXR), same order as spots
     provenance: Provenance = field(default_factory=Provenance)
-    schema_version: str = SCHEMA_VERSION
+    schema_version: str = field(default=SCHEMA_VERSION, compare=False)  # as read; writers pick 1.0 or 1.1
+    kind: str = "transients"   # 1.1: 'measurements' = per-pixel two-bounce paths and shadow masks, no transients
+
+    @property
+    def uses_1_1(self) -> bool:
+        return (self.kind != "transients" or self.sensor.ray_directions_file is not None
+                or any(s.measurement_file is not None for s in self.spots))
 
     def to_dict(self) -> dict[str, Any]:
+        """The manifest as JSON; written as version 1.0 (byte-identical to 1.0 writers) unless it needs 1.1."""
         d = asdict(self)
-        return {"schema": SCHEMA_NAME, "schema_version": self.schema_version, "units": dict(UNITS),
-                **{k: v for k, v in d.items() if k != "schema_version"}}
+        d.pop("schema_version")
+        if not self.uses_1_1:
+            d.pop("kind")
+            d["sensor"].pop("ray_directions_file")
+            for sp in d["spots"]:
+                sp.pop("measurement_file")
+        return {"schema": SCHEMA_NAME, "schema_version": "1.1" if self.uses_1_1 else "1.0", "units": dict(UNITS),
+                **d}
 
     def spot(self, spot_id: int) -> Spot:
         for s in self.spots:
@@ -365,6 +429,9 @@ class Manifest:
         ver = ck.string(d, "schema_version", "schema_version")
         if ver not in SUPPORTED_VERSIONS:
             ck.fail("schema_version", f"unknown schema version {ver!r}; this reader knows {list(SUPPORTED_VERSIONS)}")
+        kind = ck.string(d, "kind", "kind", default="transients", choices=KINDS)
+        if ver == "1.0" and "kind" in d:
+            ck.fail("kind", "needs schema_version 1.1")
         units = ck.get(d, "units", "units")
         if units != UNITS:
             ck.fail("units", f"expected {UNITS}, got {units!r}")
@@ -378,7 +445,12 @@ class Manifest:
         spots_raw = ck.get(d, "spots", "spots")
         if not isinstance(spots_raw, list):
             ck.fail("spots", "expected a list")
-        spots = [Spot.from_dict(s, ck, f"spots[{i}]") for i, s in enumerate(spots_raw)]
+        spots = [Spot.from_dict(s, ck, f"spots[{i}]", kind) for i, s in enumerate(spots_raw)]
+        if ver == "1.0" and (sensor.ray_directions_file is not None
+                             or any(s.measurement_file is not None for s in spots)):
+            ck.fail("schema_version", "ray_directions_file / measurement_file need schema_version 1.1")
+        if sensor.ray_directions_file is not None and kind != "measurements":
+            ck.fail("sensor.ray_directions_file", "per-pixel rays are only supported with kind 'measurements'")
         ids = [s.id for s in spots]
         if len(set(ids)) != len(ids):
             ck.fail("spots", f"spot ids must be unique, got {ids}")
@@ -391,4 +463,4 @@ class Manifest:
                                                       "ground_truth"),
                    rgb_files=rgb,
                    provenance=Provenance.from_dict(ck.get(d, "provenance", "provenance"), ck, "provenance"),
-                   schema_version=ver)
+                   schema_version=ver, kind=kind)

@@ -12,21 +12,32 @@ import hashlib
 import json
 import os
 import shutil
-import uuid
 from pathlib import Path
 
 import numpy as np
 
 from .exr import read_exr, read_exr_channel, write_exr
 from .schema import MANIFEST_NAME, DatasetError, GroundTruthViews, Manifest
+from .staging import StagedDir
 from .transient import Transient
 
 TRANSIENT_DIR = "transients"
+#: top-level names a dataset writer of this project writes (older datasets have no record of them)
+DATASET_ENTRIES = (MANIFEST_NAME, TRANSIENT_DIR, "ground_truth", "rgb", "*.tmp")
 WINDOW_CHANNEL = "w{:04d}"
+
+
+MEASUREMENT_DIR = "measurements"
+RAY_DIRECTIONS_FILE = "sensor/ray_directions.exr"
+MEASUREMENT_CHANNELS = ("path_m", "lit", "valid")
 
 
 def transient_relpath(spot_id: int) -> str:
     return f"{TRANSIENT_DIR}/spot_{spot_id:04d}.exr"
+
+
+def measurement_relpath(spot_id: int) -> str:
+    return f"{MEASUREMENT_DIR}/spot_{spot_id:04d}.exr"
 
 
 def _check_array(arr: np.ndarray, file: str, field: str, nonneg: bool = False, allow_inf: bool = False):
@@ -61,13 +72,21 @@ class Dataset:
         raw = read_json(mpath)
         self.manifest = Manifest.from_dict(raw, file=str(mpath))
         for i, s in enumerate(self.manifest.spots):
-            if not (self.root / s.transient_file).is_file():
-                raise DatasetError(str(self.root / s.transient_file), f"spots[{i}].transient_file", "file is missing")
+            name = "transient_file" if self.manifest.kind == "transients" else "measurement_file"
+            if not (self.root / getattr(s, name)).is_file():
+                raise DatasetError(str(self.root / getattr(s, name)), f"spots[{i}].{name}", "file is missing")
+        rays = self.manifest.sensor.ray_directions_file
+        if rays is not None and not (self.root / rays).is_file():
+            raise DatasetError(str(self.root / rays), "sensor.ray_directions_file", "file is missing")
         gt = self.manifest.ground_truth
         for name in ("train_depth_file", "mesh_file"):
             rel = getattr(gt, name)
             if rel is not None and not (self.root / rel).is_file():
                 raise DatasetError(str(self.root / rel), f"ground_truth.{name}", "file is missing")
+        for i, o in enumerate(gt.objects):
+            if not (self.root / o.mesh_file).is_file():
+                raise DatasetError(str(self.root / o.mesh_file), f"ground_truth.objects[{i}].mesh_file",
+                                   "file is missing")
         if gt.test_views is not None and not (self.root / gt.test_views.depth_file).is_file():
             raise DatasetError(str(self.root / gt.test_views.depth_file), "ground_truth.test_views.depth_file",
                                "file is missing")
@@ -81,6 +100,9 @@ class Dataset:
 
     def read_transient(self, spot_id: int) -> Transient:
         m = self.manifest
+        if m.kind != "transients":
+            raise DatasetError(str(self.root / MANIFEST_NAME), "kind",
+                               f"a {m.kind!r} dataset has no transients (read_spot_measurement instead)")
         idx = next((i for i, s in enumerate(m.spots) if s.id == spot_id), None)
         if idx is None:
             raise KeyError(f"{self.root}: no spot with id {spot_id}")
@@ -89,6 +111,53 @@ class Dataset:
     def iter_transients(self, enabled_only: bool = True):
         for s in (self.manifest.enabled_spots if enabled_only else self.manifest.spots):
             yield s, self.read_transient(s.id)
+
+    def _spot_index(self, spot_id: int) -> int:
+        idx = next((i for i, s in enumerate(self.manifest.spots) if s.id == spot_id), None)
+        if idx is None:
+            raise KeyError(f"{self.root}: no spot with id {spot_id}")
+        return idx
+
+    def read_spot_measurement(self, spot_id: int) -> dict[str, np.ndarray]:
+        """Measurements kind: {'path_m': (H, W) float32 two-bounce optical path (m, 0 where none),
+        'lit': (H, W) bool two-bounce return seen, 'valid': (H, W) bool pixel usable}."""
+        i = self._spot_index(spot_id)
+        rel, s = self.manifest.spots[i].measurement_file, self.sensor
+        field = f"spots[{i}].measurement_file"
+        if rel is None:
+            raise DatasetError(str(self.root / MANIFEST_NAME), field, "this spot has no measurement file")
+        chans, _ = read_exr(self.root / rel, field)
+        f = str(self.root / rel)
+        for name in MEASUREMENT_CHANNELS:
+            if name not in chans:
+                raise DatasetError(f, field, f"EXR channel {name!r} missing (has {sorted(chans)})")
+            if chans[name].shape != (s.height, s.width):
+                raise DatasetError(f, field, f"expected images of {s.height}x{s.width}, got {chans[name].shape}")
+        path = chans["path_m"].astype(np.float32)
+        _check_array(path, f, field, nonneg=True)
+        lit, valid = chans["lit"] > 0.5, chans["valid"] > 0.5
+        if np.any(lit & valid & (path <= 0)):
+            raise DatasetError(f, field, f"{int((lit & valid & (path <= 0)).sum())} lit pixel(s) without a "
+                                         "positive two-bounce path")
+        return {"path_m": path, "lit": lit, "valid": valid}
+
+    def ray_directions(self) -> np.ndarray | None:
+        """(H, W, 3) unit world-frame ray directions from the sensor origin, or None for pinhole rays."""
+        rel = self.sensor.ray_directions_file
+        if rel is None:
+            return None
+        field, f, s = "sensor.ray_directions_file", str(self.root / rel), self.sensor
+        chans, _ = read_exr(self.root / rel, field)
+        if any(c not in chans for c in "XYZ"):
+            raise DatasetError(f, field, f"expected channels X, Y, Z, got {sorted(chans)}")
+        d = np.stack([chans[c] for c in "XYZ"], -1).astype(np.float64)
+        if d.shape != (s.height, s.width, 3):
+            raise DatasetError(f, field, f"expected images of {s.height}x{s.width}, got {d.shape[:2]}")
+        _check_array(d, f, field)
+        n = np.linalg.norm(d, axis=-1)
+        if np.any(np.abs(n - 1.0) > 1e-3):
+            raise DatasetError(f, field, f"{int((np.abs(n - 1) > 1e-3).sum())} direction(s) are not unit vectors")
+        return d / n[..., None]
 
     def train_depth(self) -> np.ndarray | None:
         rel = self.manifest.ground_truth.train_depth_file
@@ -118,8 +187,14 @@ class Dataset:
 
     def content_hash(self) -> str:
         """sha256 over the manifest and every file it names (identifies the data a result came from)."""
-        h = hashlib.sha256()
-        for p in sorted(q for q in self.root.rglob("*") if q.is_file()):
+        m = self.manifest
+        gt = m.ground_truth
+        named = [MANIFEST_NAME, *(s.transient_file for s in m.spots), *(s.measurement_file for s in m.spots),
+                 m.sensor.ray_directions_file, *(m.rgb_files or []), gt.train_depth_file, gt.mesh_file,
+                 *([gt.test_views.depth_file] if gt.test_views is not None else [])]
+        named = [r for r in named if r]     # measurements-only datasets name no transients, and vice versa
+        h = hashlib.sha256()   # a user's files beside the dataset (notes, fit outputs) do not change it
+        for p in sorted(p for p in {self.root / r for r in named} if p.is_file()):
             h.update(str(p.relative_to(self.root)).encode())
             with open(p, "rb") as f:
                 for chunk in iter(lambda: f.read(1 << 20), b""):
@@ -177,24 +252,22 @@ class DatasetWriter:
 
     def __init__(self, out_dir: str | os.PathLike, overwrite: bool = True):
         self.out_dir = Path(out_dir).absolute()
-        if self.out_dir.exists():
-            if not self.out_dir.is_dir():
-                raise FileExistsError(f"{self.out_dir}: exists and is not a directory")
-            if any(self.out_dir.iterdir()) and not (self.out_dir / MANIFEST_NAME).is_file():
-                raise FileExistsError(f"{self.out_dir}: exists, is not empty and is not a dataset; refusing to replace it")
-            if not overwrite and (self.out_dir / MANIFEST_NAME).is_file():
-                raise FileExistsError(f"{self.out_dir}: a dataset is already there (overwrite=False)")
-        self.out_dir.parent.mkdir(parents=True, exist_ok=True)
-        self.staging = self.out_dir.parent / f".{self.out_dir.name}.partial-{uuid.uuid4().hex[:8]}"
-        self.staging.mkdir()
+        if not overwrite and (self.out_dir / MANIFEST_NAME).is_file():
+            raise FileExistsError(f"{self.out_dir}: a dataset is already there (overwrite=False)")
+        self._stage = StagedDir(self.out_dir, "dataset", legacy=DATASET_ENTRIES, marker=MANIFEST_NAME)
+        self.staging = self._stage.path
         self.committed = False
+
+    @staticmethod
+    def check_target(out_dir) -> None:
+        """Refuse now (FileExistsError) an output folder a writer would refuse later."""
+        StagedDir.check(out_dir, "dataset", legacy=DATASET_ENTRIES, marker=MANIFEST_NAME)
 
     def __enter__(self):
         return self
 
     def __exit__(self, exc_type, exc, tb):
-        if not self.committed:
-            shutil.rmtree(self.staging, ignore_errors=True)
+        self._stage.discard()
         return False
 
     def path(self, rel: str) -> Path:
@@ -215,6 +288,18 @@ class DatasetWriter:
         except OSError:
             shutil.copy2(source, dst)
         return rel
+
+    def write_spot_measurement(self, spot_id: int, path_m, lit, valid) -> str:
+        """Measurements kind: one spot's per-pixel two-bounce path (m; 0 where none) and masks."""
+        rel = measurement_relpath(spot_id)
+        write_exr(self.path(rel), {"path_m": np.asarray(path_m, np.float32),
+                                   "lit": np.asarray(lit, np.float16), "valid": np.asarray(valid, np.float16)})
+        return rel
+
+    def write_ray_directions(self, dirs: np.ndarray) -> str:
+        d = np.asarray(dirs, np.float32)
+        write_exr(self.path(RAY_DIRECTIONS_FILE), {c: d[..., i] for i, c in enumerate("XYZ")})
+        return RAY_DIRECTIONS_FILE
 
     def write_depth(self, rel: str, depth: np.ndarray) -> str:
         """Range depth (H, W) or a stack (N, H, W) -> EXR channel 'range' (stack as (N*H, W))."""
@@ -240,12 +325,6 @@ class DatasetWriter:
             os.fsync(f.fileno())
         os.replace(tmp, self.staging / MANIFEST_NAME)
         Dataset(self.staging)  # every referenced file exists
-        old = None
-        if self.out_dir.exists():
-            old = self.out_dir.parent / f".{self.out_dir.name}.old-{uuid.uuid4().hex[:8]}"
-            os.replace(self.out_dir, old)
-        os.replace(self.staging, self.out_dir)
+        self._stage.commit()
         self.committed = True
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
         return self.out_dir

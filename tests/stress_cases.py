@@ -1,6 +1,6 @@
-"""The stress suite's cases (see benchmarks/stress.py for statuses and how they are judged).
+"""The numerical stress cases (tests/stress_fixtures.py says how they are judged).
 
-Simulator cases are named in benchmarks/stress_sim.py (SIM_CASES); here each gets an expectation
+Simulator cases are named in tests/stress_sim_worker.py (SIM_CASES); here each gets an expectation
 and a post-check run on the dataset it produced. Data cases build small analytic datasets
 (torch_recon.contract.analytic, a 0.6 m box in the paper's room, 16 x 16 pixels) and run preprocessing,
 a short fast-mode fit, the mesh export and the evaluation on them.
@@ -15,8 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.harness.context import REPO_ROOT
-from benchmarks.stress_checks import (CheckFailed, NonFinite, check_dataset, fit_checked, preprocess_checked,
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+from stress_checks import (CheckFailed, NonFinite, check_dataset, fit_checked, preprocess_checked,
                                       smooth_sweep, transient_bytes_equal)
 
 PHOTON_LEVELS = (1, 3, 10, 30, 100, 1000, 10000)
@@ -25,7 +26,7 @@ PHOTON_LEVELS = (1, 3, 10, 30, 100, 1000, 10000)
 # pixels falls under the 0.15 threshold (about 12 % of lit pixels in sim-no-shadows).
 SIM_SHADOW_AGREEMENT = 0.75
 
-#: cases that fail because of a bug outside benchmarks/ -> reason (reported; the tests mark them xfail, strict,
+#: cases that fail because of a known bug -> reason (reported; the tests mark them xfail, strict,
 #: so a fix makes the test fail until the entry is removed). Found and since fixed: sim-all-shadow (photon scale
 #: zeroed the first-bounce return when no two-bounce light existed), sim-grazing-spot (window bound too small).
 KNOWN_ISSUES: dict = {}
@@ -74,7 +75,7 @@ def synth(path, size=16, photons=None, seed=0, sample_type="float32", pulse_shap
                                              depth_file=w.write_depth("ground_truth/test_depth.exr", d))
         w.commit(Manifest(sensor=sensor, spots=spot_list, layout=TransientLayout("dense", bins, sample_type),
                           noise=noise, ground_truth=gt,
-                          provenance=Provenance(generator="benchmarks/stress_cases.py", generator_version="1",
+                          provenance=Provenance(generator="tests/stress_cases.py", generator_version="1",
                                                 seed=seed, scene=scene)))
     return Path(path)
 
@@ -130,7 +131,7 @@ def case_same_seed(work):
     import torch_recon.recon as rc
     from torch_recon.contract.dataset import load_dataset
     from torch_recon.preprocess import preprocess_dataset
-    from benchmarks.stress_checks import small_fit_config
+    from stress_checks import small_fit_config
     a, b = synth(work / "a", photons=30, seed=5), synth(work / "b", photons=30, seed=5)
     c = synth(work / "c", photons=30, seed=6)
     if not transient_bytes_equal(a, b):

@@ -1,9 +1,9 @@
 """Simulator side of the stress suite: adversarial scenes run through the Cycles simulator in ONE process.
 
-Cycles start-up costs seconds per process, so benchmarks/stress.py runs every simulator
+Cycles start-up costs seconds per process, so tests/stress_fixtures.py runs every simulator
 case of a selection through one worker:
 
-    python benchmarks/stress_sim.py --cases sim-room-0.1m,sim-all-shadow --work DIR --results FILE.jsonl
+    python tests/stress_sim_worker.py --cases sim-room-0.1m,sim-all-shadow --work DIR --results FILE.jsonl
 
 Each case builds an example scene (optionally scaled/stretched, with extra boxes or a laser
 offset from the camera), applies SimulationConfig settings and calls pipeline.simulator.run

@@ -1,0 +1,99 @@
+"""Objects: what a user sees, on every example scene with labelled objects (issue 11's targets).
+
+Per example scene (torch_recon.contract.scenes.OBJECT_SCENES, Cycles, 16 spots, 128 x 128 by default) and
+method (fast; bflidar = Bounce Flash Lidar baseline; platonerf with a short wall-clock budget, marked in
+`note`), one row: the method's time (fit or baseline process: read, preprocess, fit, mesh), whole-scene
+depth L1 / PSNR on the valid test views (scene-aware dolly + orbit; the paper's 139 views on cave-chair),
+valid / invalid view counts, and from the evaluation's object metrics (torch_recon.evaluation.objects):
+object F-score at 1 / 2 / 5 cm (mean over the scene's objects), hidden recall at 2 cm, spurious-surface
+fraction (whole mesh and objects' region), degenerate faces. Targets (issue 11): F@2cm >= 0.90, hidden
+recall@2cm >= 0.85, spurious <= 0.02, no degenerate faces.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+from benchmarks.harness import Suite, runners
+from benchmarks.harness.report import fmt, markdown_table
+from torch_recon.contract.scenes import OBJECT_SCENES
+
+TIMES = ("wall_s", "cpu_s", "peak_rss_mb")
+
+
+@dataclass
+class Settings:
+    scenes: tuple = OBJECT_SCENES
+    methods: tuple = ("fast", "bflidar", "platonerf")
+    resolution: int = 128
+    spots: int = 16
+    platonerf_max_seconds: float = 300.0     # far below the paper's schedule: marked in the row's note
+    timeout_s: float = 1800.0
+
+
+def _object_fields(ctx, eval_dir: str) -> dict:
+    """The object-level numbers from the evaluation's report.json."""
+    rep = json.loads((ctx.work_dir / eval_dir / "report.json").read_text())
+    om = rep.get("object_metrics", {})
+    summ, scene = om.get("summary", {}), om.get("scene", {})
+    return {"n_test_views_invalid": rep.get("n_test_views_invalid"),
+            "obj_f1cm": summ.get("fscore@1cm"), "obj_f2cm": summ.get("fscore@2cm"), "obj_f5cm": summ.get("fscore@5cm"),
+            "hidden_recall_2cm": summ.get("recall_hidden@2cm"), "visible_recall_2cm": summ.get("recall_visible@2cm"),
+            "spurious": scene.get("spurious_fraction"), "objects_spurious": scene.get("objects_spurious_fraction"),
+            "normal_consistency": scene.get("normal_consistency"), "degenerate_faces": scene.get("degenerate_faces"),
+            "objects": ",".join(om.get("objects", {}))}
+
+
+FIELDS = ("depth_l1_m", "depth_psnr_db", "n_test_views")
+
+
+def run(s: Settings, ctx) -> list:
+    rows = []
+    for scene in s.scenes:
+        ds = ctx.dataset(scene, s.resolution, s.spots)
+        for method in s.methods:
+            out = f"{scene}-{method}"
+            note = None
+            try:
+                if method == "bflidar":
+                    res = runners.baseline(ctx, ds, out, timeout=s.timeout_s)
+                    eval_dir = f"{out}-eval"
+                elif method == "platonerf":
+                    note = f"short budget: {s.platonerf_max_seconds:g} s of training (the paper trains for hours)"
+                    res = runners.fit(ctx, ds, out, mode="platonerf", max_seconds=s.platonerf_max_seconds,
+                                      timeout=s.timeout_s)
+                    eval_dir = f"{out}-eval"
+                else:
+                    res = runners.fit(ctx, ds, out, mode=method, timeout=s.timeout_s)
+                    eval_dir = f"{out}-eval"
+            except runners.Refused as exc:
+                rows.append({"method": method, "scene": scene, **dict.fromkeys(TIMES), "note": note,
+                             "refused": str(exc)})
+                continue
+            rows.append({"method": method, "scene": scene, **{k: res.get(k) for k in TIMES},
+                         **{k: res.get(k) for k in FIELDS}, **_object_fields(ctx, eval_dir), "note": note})
+            r = rows[-1]
+            with open(ctx.work_dir / "rows.jsonl", "a") as f:     # partial results survive an interrupted run
+                f.write(json.dumps(r) + "\n")
+            ctx.log(f"  {scene} {method}: L1 {fmt(r['depth_l1_m'])} m, F@2cm {fmt(r['obj_f2cm'])}, "
+                    f"hidden R@2cm {fmt(r['hidden_recall_2cm'])}, spurious {fmt(r['spurious'])}, "
+                    f"degenerate {r['degenerate_faces']}, {fmt(r['wall_s'])} s")
+    return rows
+
+
+COLUMNS = (("scene", "scene"), ("method", "method"), ("wall_s", "time s", ".0f"),
+           ("depth_l1_m", "L1 m (valid views)", ".4f"), ("depth_psnr_db", "PSNR dB", ".2f"),
+           ("obj_f1cm", "obj F@1cm", ".3f"), ("obj_f2cm", "obj F@2cm", ".3f"), ("obj_f5cm", "obj F@5cm", ".3f"),
+           ("hidden_recall_2cm", "hidden R@2cm", ".3f"), ("spurious", "spurious", ".3f"),
+           ("degenerate_faces", "degenerate faces"), ("n_test_views", "views valid"),
+           ("n_test_views_invalid", "invalid"), ("note", "note"))
+
+
+def readme(results: dict) -> str:
+    """The README table: the issue's target columns, time beside each row (the harness adds provenance)."""
+    return markdown_table(results["rows"], COLUMNS)
+
+
+SUITE = Suite("objects", "object-level accuracy on the labelled example scenes (issue 11 targets)",
+              quick=Settings(methods=("fast",)), full=Settings(), run=run, readme=readme)

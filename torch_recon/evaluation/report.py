@@ -1,0 +1,142 @@
+"""The summary page of an evaluation: metrics tables, shaded renders and error images (HTML + one PNG montage).
+
+Files written into the evaluation's output folder:
+  summary.html              the page: scene metrics, per-object metrics, the pictures below
+  summary.png               montage: GT | reconstruction | depth error from 4 viewpoints, and the key numbers
+  pictures/views.png        the same montage without the table
+  pictures/test_views.png   a few test views: GT range, reconstruction range, |error| (titled, colour bars)
+"""
+
+from __future__ import annotations
+
+import html
+from pathlib import Path
+
+import numpy as np
+
+SUMMARY_HTML = "summary.html"
+SUMMARY_PNG = "summary.png"
+VIEWS_PNG = "pictures/views.png"
+TEST_VIEWS_PNG = "pictures/test_views.png"
+
+
+def load_gt_objects(dataset, gt_mesh) -> tuple[list, str]:
+    """([(label, trimesh)], source): the dataset's labelled objects, else split off the room's shell."""
+    import trimesh
+
+    from ..contract.scene_objects import split_mesh_objects
+    objs = dataset.manifest.ground_truth.objects
+    if objs:
+        return [(o.name, trimesh.load(dataset.path(o.mesh_file), force="mesh", process=False)) for o in objs], \
+            "labelled"
+    if gt_mesh is None:
+        return [], "none"
+    return sorted(split_mesh_objects(gt_mesh).items()), "split from the room's shell (no labels)"
+
+
+def _fmt(v, f=".3f"):
+    if v is None:
+        return "n/a"
+    if isinstance(v, float) and not np.isfinite(v):
+        return "n/a"
+    return format(v, f) if isinstance(v, (int, float)) else str(v)
+
+
+SCENE_ROWS = (("depth L1 (m), valid test views", "depth_l1_m", ".4f"),
+              ("depth PSNR (dB)", "depth_psnr_db", ".2f"),
+              ("test views valid / invalid", None, None),
+              ("Chamfer (m), whole scene", "chamfer_m", ".4f"),
+              ("F-score, whole scene", "fscore", ".3f"))
+OBJECT_COLUMNS = (("Chamfer m", "chamfer_m", ".4f"), ("F@1cm", "fscore@1cm", ".3f"), ("F@2cm", "fscore@2cm", ".3f"),
+                  ("F@5cm", "fscore@5cm", ".3f"), ("P@2cm", "precision@2cm", ".3f"),
+                  ("recall vis@2cm", "recall_visible@2cm", ".3f"), ("recall hidden@2cm", "recall_hidden@2cm", ".3f"),
+                  ("spurious", "spurious_fraction", ".3f"))
+
+
+def scene_lines(report) -> list:
+    """(name, value) rows of the scene table."""
+    rows = []
+    for name, key, f in SCENE_ROWS:
+        if key is None:
+            rows.append((name, f"{report.get('n_test_views', 0)} / {report.get('n_test_views_invalid', 0)}"))
+        else:
+            rows.append((name, _fmt(report.get(key), f)))
+    surf = report.get("object_metrics", {}).get("scene", {})
+    rows += [("spurious surface (> 2 cm), whole mesh", _fmt(surf.get("spurious_fraction"))),
+             ("spurious surface, objects' region", _fmt(surf.get("objects_spurious_fraction"))),
+             ("normal consistency", _fmt(surf.get("normal_consistency"))),
+             ("degenerate faces", _fmt(surf.get("degenerate_faces"), "d"))]
+    return rows
+
+
+def object_rows(report) -> list:
+    objs = report.get("object_metrics", {}).get("objects", {})
+    return [(name, [_fmt(o.get(k), f) for _, k, f in OBJECT_COLUMNS]) for name, o in objs.items()]
+
+
+def table_text(report) -> str:
+    lines = [f"{n:<42s} {v}" for n, v in scene_lines(report)]
+    obj = object_rows(report)
+    if obj:
+        lines.append("")
+        lines.append(f"{'object':<16s}" + "".join(f"{c:>19s}" for c, _, _ in OBJECT_COLUMNS))
+        for name, vals in obj:
+            lines.append(f"{name[:16]:<16s}" + "".join(f"{v:>19s}" for v in vals))
+    return "\n".join(lines)
+
+
+def write_summary(out_dir, report, gt_mesh, recon, objects, sensor_c2w, preds=None, gts=None, size=192) -> list:
+    """Pictures + summary.html + summary.png into out_dir; returns the relative paths written."""
+    from .render import picture_grid, picture_viewpoints, plot_grid, plot_test_view_errors
+
+    out = Path(out_dir)
+    (out / "pictures").mkdir(parents=True, exist_ok=True)
+    written = []
+    views = picture_viewpoints(gt_mesh, [m for _, m in objects], sensor_c2w)
+    rows = picture_grid(gt_mesh, recon, views, size=size)
+    plot_grid(rows, out / VIEWS_PNG)
+    written.append(VIEWS_PNG)
+    title = f"{report.get('scene') or Path(str(report.get('dataset', ''))).name}: " \
+            f"{Path(str((report.get('extra') or {}).get('reconstruction', 'reconstruction'))).name}"
+    plot_grid(rows, out / SUMMARY_PNG, table_text=table_text(report), title=title)
+    written.append(SUMMARY_PNG)
+    if preds is not None and gts is not None and len(preds):
+        n = len(preds)
+        idx = sorted({0, n // 4, n // 2, (3 * n) // 4} & set(range(n)))
+        finite = np.isfinite(gts)
+        max_d = float(gts[finite].max()) if finite.any() else 1.0
+        plot_test_view_errors(preds, gts, idx, out / TEST_VIEWS_PNG, max_d)
+        written.append(TEST_VIEWS_PNG)
+    _write_html(out / SUMMARY_HTML, report, written, title)
+    written.append(SUMMARY_HTML)
+    return written
+
+
+def _write_html(path, report, pictures, title):
+    e = html.escape
+    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{e(title)}</title>",
+             "<style>body{font-family:sans-serif;margin:1.5em}table{border-collapse:collapse;margin:0.5em 0}"
+             "td,th{border:1px solid #bbb;padding:3px 8px;text-align:right}th{background:#eee}"
+             "td:first-child{text-align:left}img{max-width:100%;margin:0.5em 0}</style></head><body>",
+             f"<h1>{e(title)}</h1>", f"<p>dataset: {e(str(report.get('dataset')))}</p>", "<h2>Scene</h2><table>"]
+    parts += [f"<tr><td>{e(n)}</td><td>{e(v)}</td></tr>" for n, v in scene_lines(report)]
+    parts.append("</table>")
+    obj = object_rows(report)
+    if obj:
+        src = report.get("objects_source", "")
+        parts.append(f"<h2>Objects</h2><p>objects: {e(src)}; recall leaves out contact points; hidden = not "
+                     "seen by the sensor (occluded, facing away or outside its view)</p><table><tr><th>object</th>")
+        parts += [f"<th>{e(c)}</th>" for c, _, _ in OBJECT_COLUMNS]
+        parts.append("</tr>")
+        for name, vals in obj:
+            parts.append(f"<tr><td>{e(name)}</td>" + "".join(f"<td>{e(v)}</td>" for v in vals) + "</tr>")
+        parts.append("</table>")
+    inv = report.get("test_views_invalid", [])
+    if inv:
+        parts.append(f"<p>{len(inv)} test views dropped (camera not in free space), e.g. view "
+                     f"{inv[0]['index']}: {e(inv[0]['reason'])}</p>")
+    for p in pictures:
+        if p.endswith(".png") and p != SUMMARY_PNG:
+            parts.append(f"<h2>{e(p)}</h2><img src='{e(p)}' alt='{e(p)}'>")
+    parts.append("</body></html>")
+    Path(path).write_text("\n".join(parts))
