@@ -5,7 +5,9 @@ The same settings travel three ways, all through this one class:
   so ``blender -b file.blend -P pipeline/simulate.py`` sees exactly the panel's settings;
 - ``--config FILE.json`` for a later headless run (the add-on can export it);
 - command-line options, which override either.
-Units: metres, picoseconds (as a person types them), degrees never appear here.
+Units: metres, picoseconds (as a person types them), degrees never appear here. The bin
+width is given as `bin_ps` or, exactly in metres of optical path, as `bin_m` (then
+`bin_ps` follows from it; converted in torch_recon.contract.units).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from dataclasses import asdict, dataclass, field, fields
 
 from torch_recon.contract.errors import SettingsError
 from torch_recon.contract.settings import check_value, find_spec, load_file
+from torch_recon.contract.units import bin_widths_consistent, m_to_ps
 
 CONFIG_SCHEMA_VERSION = "1.0"
 #: Name of the Text datablock in which the add-on keeps the settings inside the .blend
@@ -46,6 +49,7 @@ class SimulationConfig:
     width: int = 512
     height: int = 512
     bin_ps: float = 128.0
+    bin_m: float | None = None             # bin width as optical path (m); when set it defines the bin
     bins: int = 391
     start_m: float = 0.0
     pulse_fwhm_ps: float = 128.0
@@ -61,7 +65,10 @@ class SimulationConfig:
     gate_window_bins: int = 32
     bounces: int = 2                       # 2, or 3 for third-order light (costs more)
     third_bounce_vpls: int = 16            # with bounces=3: virtual point lights (one render each) per spot
-    subpixel_samples: int = 4              # per pixel, for depth edges spanning bins
+    subpixel_samples: int = 4              # base samples per pixel (a square number)
+    adaptive_subpixel_samples: int = 64    # samples of a pixel at an edge (a square number; 0: fixed sampling)
+    adaptive_spread_bins: float = 1.0      # refine a pixel whose optical path spreads over more bins than this
+    shading: str = "lambertian"            # 'lambertian': passes + shadow rays; 'cycles': a Cycles render per spot
     rgb: bool = False                      # RGB images for the RGB-shadow baseline
     train_depth: bool = True
     test_views_dolly: int = 39             # 0 to skip
@@ -96,6 +103,23 @@ class SimulationConfig:
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0 \
                     or (positive and v == 0):
                 bad(name, f"expected a {'positive' if positive else 'non-negative'} finite number, got {v!r}")
+        if self.bin_m is not None:
+            v = self.bin_m
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                bad("bin_m", f"expected a positive finite number of metres, got {v!r}")
+            if not bin_widths_consistent(v, self.bin_ps):
+                bad("bin_m", f"bin_m={v} m and bin_ps={self.bin_ps} ps describe different bins ({m_to_ps(v)} ps); "
+                             "give only one of them")
+            self.bin_ps = float(m_to_ps(v))     # the metres define the bin; ps follows exactly
+        for name in ("adaptive_subpixel_samples",):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0 or (v and math.isqrt(v) ** 2 != v):
+                bad(name, f"expected 0 (off) or a square number (4, 16, 64, ...), got {v!r}")
+        v = self.adaptive_spread_bins
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            bad("adaptive_spread_bins", f"expected a positive number of bins, got {v!r}")
+        if self.shading not in ("lambertian", "cycles"):
+            bad("shading", f"expected 'lambertian' or 'cycles', got {self.shading!r}")
         if self.wavelength_filter_factor > 1:
             bad("wavelength_filter_factor", f"expected a fraction in [0, 1], got {self.wavelength_filter_factor}")
         if self.test_view_trajectory not in ("scene", "paper"):
@@ -139,6 +163,8 @@ class SimulationConfig:
             raise ConfigError(source, unknown[0], f"unknown setting (known: {sorted(known)})")
         kw = dict(d)
         kw.pop("schema_version", None)
+        if kw.get("bin_m") is not None and "bin_ps" not in kw:
+            kw["bin_ps"] = m_to_ps(kw["bin_m"]) if isinstance(kw["bin_m"], (int, float)) else 128.0
         spots = kw.pop("spots", [])
         for key, value in kw.items():   # types and ranges: the shared settings mechanism
             try:

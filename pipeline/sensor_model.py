@@ -233,3 +233,49 @@ def widen_window(tr: Transient, window_bins: int) -> Transient:
     idx = (tr.start_bin - start)[..., None] + np.arange(g_old)
     np.put_along_axis(out, idx, tr.window, axis=2)
     return Transient(start, out, t)
+
+
+def apply_sensor_windows(start, window, sensor: SensorSpec, noise: NoiseSpec, rng: np.random.Generator, *,
+                         first_bounce_pixel=None, sample_type: str = "float32"):
+    """apply_sensor for an expected transient already in windows (transient_binning.bin_windows).
+
+    Only stages 1 and 5 apply (no background, no time gate: the caller expands to a dense cube
+    for those), so the windows are the stored layout: the same result as apply_sensor on the
+    dense cube followed by widen_window to G, without ever building the cube.
+    start (H, W) first bin per pixel, window (H, W, G) expected values >= 0.
+    """
+    start = np.asarray(start, np.int64)
+    window = np.asarray(window, np.float32)
+    h, w, g = window.shape
+    t = sensor.bins
+    if sensor.time_gate.enabled or np.any(np.asarray(background_rate(noise)) > 0):
+        raise ValueError("apply_sensor_windows: a time gate or background needs apply_sensor on the dense cube")
+    if (h, w) != (sensor.height, sensor.width) or start.shape != (h, w) or not 1 <= g <= t:
+        raise ValueError(f"expected start (H, W) and window (H, W, G<= {t}) of the {sensor.height}x{sensor.width} "
+                         f"sensor, got {start.shape} and {window.shape}")
+    if window.size:
+        lo, hi = float(window.min()), float(window.max())
+        if not (math.isfinite(lo) and math.isfinite(hi)) or lo < 0:
+            raise ValueError("expected transient: contains NaN, inf or negative values")
+    if sample_type not in ("float32", "float16"):
+        raise ValueError(f"sample_type: expected 'float32' or 'float16', got {sample_type!r}")
+    flat = window.reshape(h * w, g)
+    scale = photon_scale(flat.sum(axis=1, dtype=np.float64).reshape(h, w), noise, first_bounce_pixel)
+    if not float(flat.max(initial=0.0)) * scale <= np.finfo(np.float32).max:
+        raise ValueError("photons_per_pixel: the scaled transient overflows float32; lower photons_per_pixel")
+    out = np.empty_like(flat)
+    zero_bg = np.zeros(CHUNK_PIXELS)
+    for a in range(0, h * w, CHUNK_PIXELS):
+        b = min(a + CHUNK_PIXELS, h * w)
+        if noise.photon_counts:
+            _poisson_counts(flat[a:b], scale, zero_bg[:b - a], rng, out=out[a:b])
+        else:
+            np.multiply(flat[a:b], scale, out=out[a:b], casting="unsafe")
+    if sample_type == "float16":
+        peak = float(out.max()) if out.size else 0.0
+        if peak > FLOAT16_MAX:
+            raise ValueError(f"sample_type float16: a value of {peak:.0f} exceeds the float16 maximum "
+                             f"{FLOAT16_MAX:.0f}; lower photons_per_pixel or store float32")
+        out = out.astype(np.float16).astype(np.float32)
+    tr = Transient(start, out.reshape(h, w, g), t)
+    return tr, TransientLayout(kind="dense" if g == t else "windowed", window_bins=g, sample_type=sample_type)

@@ -66,12 +66,21 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--width", type=int)
     ap.add_argument("--height", type=int)
     ap.add_argument("--bins", type=int, help="time bins per pixel")
-    ap.add_argument("--bin-ps", type=float, help="bin width in picoseconds")
+    bin_width = ap.add_mutually_exclusive_group()
+    bin_width.add_argument("--bin-ps", type=float, help="bin width in picoseconds")
+    bin_width.add_argument("--bin-m", type=float, help="bin width in metres of optical path (e.g. the paper's "
+                           "0.0384); give this or --bin-ps")
     ap.add_argument("--start-m", type=float, help="optical path (m) of the first bin's start")
     ap.add_argument("--pulse-fwhm-ps", type=float, help="laser pulse width (FWHM, ps)")
     ap.add_argument("--pulse-shape", choices=("gaussian", "box"))
     ap.add_argument("--footprint-m", type=float, help="laser footprint radius (m)")
-    ap.add_argument("--subpixel", type=int, help="sub-pixel samples per pixel (a square number: 1, 4, 9, ...)")
+    ap.add_argument("--subpixel", type=int, help="base sub-pixel samples per pixel (a square number: 1, 4, 9, ...)")
+    ap.add_argument("--adaptive", type=int, metavar="N", help="samples of a pixel at a depth, shadow or path-spread "
+                    "edge (a square number; 0: every pixel gets --subpixel samples)")
+    ap.add_argument("--adaptive-spread-bins", type=float, help="refine pixels whose optical path spreads over more "
+                    "bins than this (default 1)")
+    ap.add_argument("--shading", choices=("lambertian", "cycles"), help="per-spot light: deferred Lambertian "
+                    "shading with shadow rays (default), or a Cycles render per spot (glossy materials; slower)")
     spots = ap.add_mutually_exclusive_group()
     spots.add_argument("--spots", type=int, help="K spots: K of the scene's spots (diversity heuristic), or K "
                        "of --candidates random ones when the scene has none")
@@ -136,6 +145,8 @@ def apply_options(cfg, args):
     direct = {"camera": "camera", "width": "width", "height": "height", "bins": "bins", "bin_ps": "bin_ps",
               "start_m": "start_m", "pulse_fwhm_ps": "pulse_fwhm_ps", "pulse_shape": "pulse_shape",
               "footprint_m": "footprint_radius_m", "subpixel": "subpixel_samples", "candidates": "random_candidates",
+              "adaptive": "adaptive_subpixel_samples", "adaptive_spread_bins": "adaptive_spread_bins",
+              "shading": "shading", "bin_m": "bin_m",
               "photons": "photons_per_pixel", "poisson": "photon_counts", "ambient": "ambient_per_bin",
               "wavelength_filter": "wavelength_filter_factor", "dark_counts": "dark_counts_per_bin",
               "bounces": "bounces", "vpls": "third_bounce_vpls", "rgb": "rgb",
@@ -146,6 +157,13 @@ def apply_options(cfg, args):
         v = getattr(args, opt)
         if v is not None:
             setattr(cfg, name, v)
+    if args.bin_ps is not None:       # the command line's unit wins over a stored bin_m
+        cfg.bin_m = None
+    if args.bin_m is not None:
+        from torch_recon.contract.units import m_to_ps
+
+        if args.bin_m > 0:            # else validate() names bin_m
+            cfg.bin_ps = m_to_ps(args.bin_m)
     if args.spots is not None:
         cfg.random_keep = args.spots
         if args.spots > cfg.random_candidates and args.candidates is None:

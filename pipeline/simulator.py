@@ -16,13 +16,16 @@ import json
 import math
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 
 import bpy
 import numpy as np
+from scipy.ndimage import maximum_filter, minimum_filter
 
 from pipeline import blender_scene as bs
 from pipeline import sensor_model, third_bounce, transient_binning
+from pipeline.spot_samples import SpotSampler, windows_to_dense
 from torch_recon.contract import ground_truth, spots
 from torch_recon.contract.errors import PlatolidarError
 from pipeline.cycles_render import EMITTER_OFFSET_M, CyclesRenderer
@@ -31,10 +34,12 @@ from torch_recon.contract.dataset import (DatasetError, DatasetWriter, Manifest,
 from torch_recon.contract.frames import focal_length_px, project_points
 from torch_recon.contract.units import ps_to_m
 
-SIM_VERSION = "1.0"
+SIM_VERSION = "1.1"   # 1.1: deferred Lambertian shading, adaptive edge sampling
 LASER_POWER_W = 1.0          # expected values are in units of this power; the sensor model rescales
 RGB_POWER_W = 100.0          # point light of the RGB-shadow images (exposure only)
 DEFAULT_ALBEDO = 0.8
+#: spots whose transients may wait for the background writer
+WRITE_QUEUE = 1
 
 
 class SimulationError(PlatolidarError, RuntimeError):
@@ -67,7 +72,7 @@ def sensor_spec(cfg, c2w, fov_rad, fov_axis, laser_origin) -> SensorSpec:
     return SensorSpec(width=cfg.width, height=cfg.height, fov_rad=float(fov_rad), fov_axis=fov_axis,
                       camera_to_world=np.asarray(c2w).tolist(), laser_origin=[float(v) for v in laser_origin],
                       pulse=PulseSpec(cfg.pulse_shape, float(cfg.pulse_fwhm_ps)), bin_width_ps=float(cfg.bin_ps),
-                      bin_width_m=float(ps_to_m(cfg.bin_ps)), bins=cfg.bins, start_m=float(cfg.start_m),
+                      bin_width_m=float(cfg.bin_m if cfg.bin_m is not None else ps_to_m(cfg.bin_ps)), bins=cfg.bins, start_m=float(cfg.start_m),
                       time_gate=TimeGate(bool(cfg.time_gate), cfg.gate_window_bins if cfg.time_gate else 0))
 
 
@@ -165,9 +170,10 @@ def first_bounce_pixel(p: SpotPlan, sensor, scene, depsgraph, geometry):
     p.first_bounce_radiance = (p.albedo / math.pi) * LASER_POWER_W / a_pix
 
 
-def window_bins_bound(plans, sensor, geometry, footprint_m: float) -> int:
+def window_bins_bound(plans, sensor, geometry, footprint_m: float, neighbourhood: bool = False) -> int:
     """A window length holding every non-zero bin of every spot (one layout for the dataset).
 
+    neighbourhood: bound each pixel's paths over its 3 x 3 neighbours (adaptive sampling).
     Also checks, before any rendering, that every path that could be lit (the sample faces l
     and l faces the sample) fits the bin range. float32 (+2 bins of margin): it is a bound.
     """
@@ -194,6 +200,8 @@ def window_bins_bound(plans, sensor, geometry, footprint_m: float) -> int:
                 f"(--bins) or the bin width (--bin-ps)")
         hi = np.where(facing, paths, -np.inf).max(axis=0)
         lo = np.where(facing, paths, np.inf).min(axis=0)
+        if neighbourhood:           # edge pixels are sampled again: their samples may see what a neighbour sees
+            hi, lo = maximum_filter(hi, size=3), minimum_filter(lo, size=3)
         if p.pixel is not None:     # the first-bounce return shares its pixel with two-bounce samples
             p1 = transient_binning.first_bounce_path(p.first_bounce, sensor.laser_origin, sensor.sensor_origin)
             hi[p.pixel] = max(hi[p.pixel], p1)
@@ -248,6 +256,7 @@ class RunContext:
     timings: dict
     objects: dict = field(default_factory=dict)   # {label: (trimesh, part names)}: the GT writer's objects
     room_mesh: object = None                      # the GT without those objects
+    sampler: object = None                        # SpotSampler (shading 'lambertian')
 
 
 def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
@@ -289,7 +298,8 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
         for p in plans:
             first_bounce_pixel(p, sensor, scene, depsgraph, geometry)
         t0 = time.perf_counter()
-        g_bound = window_bins_bound(plans, sensor, geometry, cfg.footprint_radius_m)
+        g_bound = window_bins_bound(plans, sensor, geometry, cfg.footprint_radius_m,
+                                    neighbourhood=cfg.shading == "lambertian" and cfg.adaptive_subpixel_samples > 0)
         if cfg.bounces == 3:      # third-order light spreads over long paths: keep every bin
             g_bound = sensor.bins
         _tick(timings, "window_bound_s", t0)
@@ -302,13 +312,20 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
         albedos = [bs.object_albedo(bpy.data.objects[n]) or DEFAULT_ALBEDO for n in triangles[3]]
         common = {"version": SIM_VERSION, "sensor": asdict(sensor), "noise": asdict(noise), "seed": cfg.seed,
                   "bounces": cfg.bounces, "footprint": cfg.footprint_radius_m, "window_bound": g_bound,
-                  "geometry": geometry_hash(triangles, geometry, albedos),
+                  "geometry": geometry_hash(triangles, geometry, albedos), "shading": cfg.shading,
+                  "subpixel": cfg.subpixel_samples, "adaptive": cfg.adaptive_subpixel_samples,
+                  "adaptive_spread_bins": cfg.adaptive_spread_bins,
                   "ambient": None if ambient_scale is None else hashlib.sha256(ambient_scale.tobytes()).hexdigest()}
         ctx = RunContext(cfg, scene_label, renderer, sensor, noise, geometry, g_bound, ambient_scale, common,
                          _previous_dataset(out_dir), ground_truth.scene_mesh(triangles[0], triangles[1]),
                          third_bounce.ThirdBounce(scene, depsgraph, cfg) if cfg.bounces == 3 else None, timings)
         ctx.objects = ground_truth.object_meshes(*triangles, labelled=bs.labelled_objects())
         ctx.room_mesh = ground_truth.room_mesh(triangles, ctx.objects)
+        if cfg.shading == "lambertian":
+            t0 = time.perf_counter()
+            ctx.sampler = SpotSampler(sensor, geometry, triangles, albedos, cfg.adaptive_subpixel_samples,
+                                      cfg.adaptive_spread_bins, LASER_POWER_W)
+            _tick(timings, "ray_setup_s", t0)
         while True:   # a second pass only if a spot's signal outgrew the geometric window bound
             try:
                 write_dataset(out_dir, plans, ctx)
@@ -322,7 +339,9 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
     finally:
         renderer.close()
     timings["total_s"] = time.perf_counter() - t_start
-    log("timings: " + ", ".join(f"{k} {v:.2f}" for k, v in timings.items() if k != "spot_s"))
+    log("timings: " + ", ".join(f"{k} {v:.2f}" for k, v in timings.items() if not k.endswith("_pixels")))
+    log(f"adaptive sampling (pixel-spots): {timings.get('edge_pixels', 0)} edge pixels re-sampled, "
+        f"{timings.get('spread_pixels', 0)} smooth wide-spread pixels interpolated")
     return {"spots": len(plans), "timings": timings}
 
 
@@ -372,8 +391,10 @@ def write_dataset(out_dir, plans, ctx: RunContext):
     """Render (or reuse) every spot, write ground truth and commit: one atomic dataset."""
     cfg, timings, old = ctx.cfg, ctx.timings, ctx.old
     old_files = {s.content_hash: old.root / s.transient_file for s in old.manifest.spots} if old else {}
-    with DatasetWriter(out_dir) as writer:
-        spots, rgb_files, layout = [], [], None
+    # transients are written by one background thread (zlib in OpenEXR runs without the GIL) while
+    # the next spot is shaded; at most WRITE_QUEUE spots wait, bounding memory
+    with DatasetWriter(out_dir) as writer, ThreadPoolExecutor(max_workers=1) as write_pool:
+        spots, rgb_files, layout, pending = [], [], None, []
         for k, p in enumerate(plans):
             t0 = time.perf_counter()
             h = spot_hash(p, ctx.common)
@@ -383,10 +404,12 @@ def write_dataset(out_dir, plans, ctx: RunContext):
                 what, lay = "unchanged, reused", old.manifest.layout
             else:
                 tr, lay = simulate_spot(p, ctx.renderer, ctx.sensor, ctx.noise, ctx.geometry, ctx.window_bound,
-                                        ctx.ambient_scale, cfg, ctx.vpl, timings)
+                                        ctx.ambient_scale, cfg, ctx.vpl, timings, ctx.sampler)
                 t1 = time.perf_counter()
-                writer.write_transient(p.id, tr, lay.sample_type)
-                _tick(timings, "write_s", t1)
+                while len(pending) >= WRITE_QUEUE:
+                    pending.pop(0).result()
+                pending.append(write_pool.submit(_timed_write, writer, p.id, tr, lay.sample_type, timings))
+                _tick(timings, "write_wait_s", t1)
                 what = "rendered"
             if layout is not None and (lay.kind, lay.window_bins) != (layout.kind, layout.window_bins):
                 raise SimulationError(f"internal: spot {p.id} has layout {lay} unlike {layout}")
@@ -402,7 +425,10 @@ def write_dataset(out_dir, plans, ctx: RunContext):
             log(f"spot {k + 1}/{len(plans)} (id {p.id}, {p.name}): l = {np.round(p.first_bounce, 3).tolist()}, "
                 f"albedo {p.albedo:.2f}, {what} in {dt:.2f} s")
         t0 = time.perf_counter()
-        gt = ground_truth.write_ground_truth(writer, ctx.mesh, ctx.sensor, cfg, ctx.objects, ctx.room_mesh)
+        gt = ground_truth.write_ground_truth(writer, ctx.mesh, ctx.sensor, cfg, ctx.objects,
+                                             ctx.room_mesh)   # overlaps the last transient writes
+        for f in pending:
+            f.result()
         timings["ground_truth_s"] = time.perf_counter() - t0
         manifest = Manifest(sensor=ctx.sensor, spots=spots, layout=layout, noise=ctx.noise, ground_truth=gt,
                             rgb_files=rgb_files,
@@ -415,24 +441,54 @@ def write_dataset(out_dir, plans, ctx: RunContext):
         writer.commit(manifest)
 
 
+def _timed_write(writer, spot_id, tr, sample_type, timings):
+    t0 = time.perf_counter()
+    writer.write_transient(spot_id, tr, sample_type)
+    timings["write_s"] = timings.get("write_s", 0.0) + time.perf_counter() - t0   # one writer thread
+
+
 def _tick(timings, key, t0):
     timings[key] = timings.get(key, 0.0) + time.perf_counter() - t0
     return time.perf_counter()
 
 
-def simulate_spot(p, renderer, sensor, noise, geometry, g_bound, ambient_scale, cfg, vpl, timings):
-    """Render, bin and apply the sensor model for one spot: (Transient, TransientLayout)."""
+def simulate_spot(p, renderer, sensor, noise, geometry, g_bound, ambient_scale, cfg, vpl, timings, sampler=None):
+    """Render, bin and apply the sensor model for one spot: (Transient, TransientLayout).
+
+    With a SpotSampler (shading 'lambertian'): deferred shading + adaptive edge samples, binned
+    straight into the dataset's windows; the dense (H, W, T) cube is built only for a time gate,
+    a background or third-order light. Else a Cycles render of the spot at the base samples.
+    """
     pos, nrm, alb, valid = geometry
     o, c = np.asarray(sensor.laser_origin), sensor.sensor_origin
     t0 = time.perf_counter()
-    radiance = renderer.render_emitter(p.first_bounce, p.normal, p.albedo * LASER_POWER_W, cfg.footprint_radius_m,
-                                       name=f"spot_{p.id}")
-    t0 = _tick(timings, "render_s", t0)
     try:
-        expected = transient_binning.bin_two_bounce(pos, radiance, valid, p.first_bounce, o, c, sensor,
-                                                    first_bounce_pixel=p.pixel,
-                                                    first_bounce_radiance=p.first_bounce_radiance)
-        t0 = _tick(timings, "binning_s", t0)
+        if sampler is not None:
+            start, window, needed, counts = sampler.expected_windows(p, g_bound)
+            for k, v in counts.items():
+                key = k if k.endswith("_s") else f"{k}_pixels"
+                timings[key] = timings.get(key, 0) + v
+            if needed > g_bound:
+                raise WindowTooSmall(p.id, needed)
+            t0 = time.perf_counter()
+            dense = vpl is not None or sensor.time_gate.enabled or np.any(
+                np.asarray(sensor_model.background_rate(noise, ambient_scale)) > 0)
+            if not dense:
+                h, w = sensor.height, sensor.width
+                tr, layout = sensor_model.apply_sensor_windows(start.reshape(h, w), window.reshape(h, w, -1), sensor,
+                                                               noise, np.random.default_rng([cfg.seed, p.id]),
+                                                               first_bounce_pixel=p.pixel)
+                _tick(timings, "sensor_model_s", t0)
+                return tr, layout
+            expected = windows_to_dense(start, window, sensor.bins).reshape(sensor.height, sensor.width, -1)
+        else:
+            radiance = renderer.render_emitter(p.first_bounce, p.normal, p.albedo * LASER_POWER_W,
+                                               cfg.footprint_radius_m, name=f"spot_{p.id}")
+            t0 = _tick(timings, "render_s", t0)
+            expected = transient_binning.bin_two_bounce(pos, radiance, valid, p.first_bounce, o, c, sensor,
+                                                        first_bounce_pixel=p.pixel,
+                                                        first_bounce_radiance=p.first_bounce_radiance)
+            t0 = _tick(timings, "binning_s", t0)
         if vpl is not None:
             vpl.add(expected, p, renderer, sensor, geometry)
             t0 = _tick(timings, "third_bounce_s", t0)
