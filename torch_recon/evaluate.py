@@ -88,18 +88,20 @@ def render_mesh_depth(mesh, c2w, width, height, fov_rad, fov_axis="x", cull_back
 
 
 def render_density_depth(density, c2w, width, height, fov_rad, bbox_min, bbox_max, fov_axis="x", n_samples=192,
-                         min_opacity=0.5, device="cpu", chunk=1 << 16) -> np.ndarray:
+                         min_opacity=0.5, device="cpu", chunk=1 << 16, pixels=None) -> np.ndarray:
     """Expected depth of a density field density(xyz (N, 3) torch) -> sigma (N,) along each pixel ray.
 
     Samples are spaced evenly over the ray's segment inside [bbox_min, bbox_max];
     depth = sum(w t) / sum(w) where the accumulated opacity sum(w) >= min_opacity,
-    else inf (a miss). Returns (H, W) float32.
+    else inf (a miss). Returns (H, W) float32, or (len(pixels),) for the row-major pixel indices `pixels`.
     """
     import torch
 
     c2w = np.asarray(c2w, np.float64)
-    dirs = camera_ray_directions(width, height, fov_rad, fov_axis) @ c2w[:3, :3].T
-    d = torch.as_tensor(dirs.reshape(-1, 3), dtype=torch.float32, device=device)
+    dirs = (camera_ray_directions(width, height, fov_rad, fov_axis) @ c2w[:3, :3].T).reshape(-1, 3)
+    if pixels is not None:
+        dirs = dirs[np.asarray(pixels)]
+    d = torch.as_tensor(dirs, dtype=torch.float32, device=device)
     o = torch.as_tensor(c2w[:3, 3], dtype=torch.float32, device=device)
     lo = torch.as_tensor(np.asarray(bbox_min, np.float64), dtype=torch.float32, device=device)
     hi = torch.as_tensor(np.asarray(bbox_max, np.float64), dtype=torch.float32, device=device)
@@ -123,7 +125,8 @@ def render_density_depth(density, c2w, width, height, fov_rad, bbox_min, bbox_ma
             acc = w.sum(1)
             dep = (w * t).sum(1) / acc.clamp_min(1e-10)
             out[s:s + chunk] = torch.where(hit & (acc >= min_opacity), dep, torch.full_like(dep, float("inf")))
-    return out.reshape(height, width).cpu().numpy().astype(np.float32)
+    out = out.cpu().numpy().astype(np.float32)
+    return out if pixels is not None else out.reshape(height, width)
 
 
 # ---------------------------------------------------------------- metrics

@@ -79,8 +79,9 @@ def measurements_hash(meas: Measurements) -> str:
     return "measurements:" + h.hexdigest()
 
 
-def load_source(source, progress: bool = True):
-    """Measurements and a hash naming the data: from a Measurements, a .npz, or a dataset directory."""
+def load_source(source, progress: bool = True, device="cpu"):
+    """Measurements and a hash naming the data: from a Measurements, a .npz, or a dataset directory
+    (preprocessed, visible depth included, with torch on `device`)."""
     if isinstance(source, Measurements):
         return source, measurements_hash(source)
     path = Path(source)
@@ -96,7 +97,7 @@ def load_source(source, progress: bool = True):
     from ..preprocess import preprocess_dataset
 
     ds = load_dataset(path)
-    meas = preprocess_dataset(ds)
+    meas = preprocess_dataset(ds, device=device)
     return meas, "dataset:" + ds.content_hash()
 
 
@@ -109,7 +110,7 @@ def fit(source, mode: str | None = None, out=None, config: FitConfig | None = No
         cfg = FitConfig.from_dict({**cfg.to_dict(), "mode": mode})
     torch.manual_seed(cfg.seed)
     dev = resolve_device(cfg.device, cfg.threads)
-    meas, src_hash = load_source(source, cfg.progress)
+    meas, src_hash = load_source(source, cfg.progress, dev)   # the setup runs on the fit's device too
     data = build_ray_data(meas).to(dev)     # refuses unusable measurements before anything is written
     stage = None
     if out is not None:     # results are staged and swapped in whole; the checkpoint lives in the target
@@ -143,6 +144,8 @@ def _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, expo
                        "device": str(dev), "steps": tr.steps_done, "stopped": tr.stopped,
                        "setup_seconds": round(setup, 3), "train_seconds": round(tr.train_seconds, 3),
                        "nan_restores": tr.nan_restores, "resumed_from": tr.resumed_from}
+    if hasattr(model, "reinit_steps"):
+        result.metadata["reinitialised_after_steps"] = list(model.reinit_steps)
     if stage is not None and tr.stopped == "interrupted":
         # Ctrl-C / SIGTERM: the checkpoint is saved for a resume; the previous results stay as they were
         result.total_seconds = time.perf_counter() - t_start

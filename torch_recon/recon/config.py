@@ -1,9 +1,11 @@
 """Settings of a fit, as dataclasses (JSON round-trip; every number a person may tune lives here).
 
 Two modes share the data, the losses and the evaluation:
-- ``platonerf``: the published method (NeRF MLP + positional encoding, 64 coarse + 128 fine samples,
-  1024 rays per step, MSE distance loss on path / 15 weighted 6000, MSE shadow loss on the secondary
-  ray's transmittance, distance loss alone for the first 12.5 % of the steps, loss x 100).
+- ``platonerf``: the published method trained like the authors' code (NeRF MLPs + positional
+  encoding, 64 coarse + 128 fine samples, 1024 rays per step; warm-up: plain MSE of path / 15 on lit
+  rays for the first 12.5 % of the steps; then 6000 x that MSE + MSE of the secondary rays'
+  transmittance on shadowed and lit rays; both for the coarse and fine depth; total x 100; networks
+  re-created when their gradient is exactly zero).
 - ``fast``: the same measurements and losses on an explicit density grid that starts from the closed-form
   visible depth and shadow carving, samples only occupied cells, runs coarse to fine, stops on a plateau.
 """
@@ -68,20 +70,25 @@ class FastConfig:
 
 @dataclass
 class PlatoNeRFConfig:
-    """The published architecture and sampling (nerf-pytorch based)."""
+    """The authors' published training (src/run_platonerf.py + configs/chair.txt); differences and
+    reasons in docs/reconstruction.md."""
 
     depth: int = 8
     width: int = 256
-    skip: int = 4
-    pe_frequencies: int = 10
-    coarse_samples: int = 64
-    fine_samples: int = 128
-    rays_per_batch: int = 1024
+    skip: int = 4                     # the input is concatenated again after this layer
+    pe_frequencies: int = 10          # multires 10
+    coarse_samples: int = 64          # N_samples
+    fine_samples: int = 128           # N_importance
+    rays_per_batch: int = 1024        # N_rand
     lr: float = 5e-4
-    lr_decay_steps: int = 500_000     # lr * 0.1 ** (step / lr_decay_steps) (paper: lrate_decay 500 x 1000)
+    lr_decay_steps: int = 500_000     # lr * 0.1 ** (step / lr_decay_steps) (lrate_decay 500 x 1000)
     steps: int = 200_000
-    near_m: float = 0.0
-    far_m: float | None = None        # None: where the ray leaves the scene's box (paper: fixed 6 m)
+    near_m: float = 0.1               # camera and secondary rays start here (their default --near)
+    far_m: float | None = 6.0         # camera rays end here (their fixed far); None: the scene box exit
+    test_near_m: float = 0.0          # their test-view rendering starts at 0
+    reinit_dead: str = "both"         # re-create both networks when the weights' gradient of 'coarse'
+                                      # (theirs), of 'either' network ('both', default) is exactly 0; 'off'
+    reinit_snapshot_every: int = 5000  # ... from the networks saved this often (their i_weights), if any
     volume_resolution: int = 128      # density sampled on this grid for the mesh
 
 
@@ -119,6 +126,9 @@ class FitConfig:
             if getattr(self.fast, key) < 4:
                 raise SettingsError(f"fast.{key}", f"expected an integer >= 4 (a coarse level at or above the "
                                                    f"resolution is skipped), got {getattr(self.fast, key)}")
+        if self.platonerf.reinit_dead not in ("both", "coarse", "off"):
+            raise SettingsError("platonerf.reinit_dead",
+                                f"expected 'both', 'coarse' or 'off', got {self.platonerf.reinit_dead!r}")
         check_device_name(self.device)
         for key in ("fast.lr", "fast.step_voxels", "fast.rays_per_batch", "platonerf.lr", "platonerf.rays_per_batch",
                     "loss.path_scale_m"):
