@@ -160,13 +160,15 @@ def uv_unwrap(mesh, block_faces: int = 2000):
     """
     import trimesh
     import xatlas
+    from tqdm import tqdm
 
     v = np.asarray(mesh.vertices, np.float64)
     f = np.asarray(mesh.faces, np.int64)
     blocks = _split_faces(v[f].mean(axis=1), np.arange(len(f)), block_faces)
     n = int(np.ceil(np.sqrt(len(blocks))))
     verts, faces, uvs, base = [], [], [], 0
-    for b, fi in enumerate(blocks):
+    # a bar once the atlas takes seconds (about 0.1 s per block here)
+    for b, fi in enumerate(tqdm(blocks, desc="UV atlas", unit="block", disable=len(blocks) < 16, leave=False)):
         used, local = np.unique(f[fi], return_inverse=True)
         vmap, idx, uv = xatlas.parametrize(v[used].astype(np.float32), local.reshape(-1, 3).astype(np.uint32))
         verts.append(v[used][vmap])

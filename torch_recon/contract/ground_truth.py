@@ -77,7 +77,10 @@ def render_ground_truth(writer, mesh, sensor, *, train_depth: bool = True, test_
                                 sensor.fov_axis))
     if test_cameras is not None and len(test_cameras):
         tw, th = test_size
-        depths = np.stack([range_image(mesh, c2w, tw, th, test_fov_rad, "x") for c2w in test_cameras])
+        from tqdm import tqdm
+        depths = np.stack([range_image(mesh, c2w, tw, th, test_fov_rad, "x")
+                           for c2w in tqdm(test_cameras, desc="ground truth views", unit="view", leave=False,
+                                           disable=len(test_cameras) < 8)])
         gt.test_views = write_test_views(writer, test_cameras, depths, test_fov_rad)
     if export_mesh:
         gt.mesh_file = write_mesh(writer, mesh)
