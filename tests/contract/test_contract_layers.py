@@ -12,7 +12,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 CONTRACT = REPO / "torch_recon" / "contract"
-ALLOWED_THIRD_PARTY = {"numpy", "OpenEXR", "Imath", "trimesh", "scipy", "embreex"}
+ALLOWED_THIRD_PARTY = {"numpy", "OpenEXR", "Imath", "trimesh", "scipy", "embreex", "tqdm"}
 BLOCKED = ("bpy", "mathutils", "torch", "pipeline", "addon")
 
 
