@@ -55,6 +55,11 @@ class PreprocessSettings:
     background: str = "none"           # 'median': subtract each pixel's median before the filter
     first_bounce_tolerance_m: float = 0.05  # warn when l differs this much from a recorded first bounce
     min_first_bounce_snr: float = 5.0  # first-bounce peak must exceed this x the pixel's median (+ floor)
+    partial_shadow_ratio: float = 0.5  # lit pixel with under this x the photons of same-surface lit pixels on
+                                       # both sides (within 2 px): a thin shadow covers part of it (0: off)
+    partial_shadow_z: float = 2.0      # ... and the deficit exceeds this many Poisson standard deviations
+    partial_shadow_edges: bool = True  # also the rim of a shadow: dimmer than ratio x the lit side
+    same_surface_bins: float = 2.0     # neighbours count as the same surface within this many bins of path
     chunk_elements: int = 1 << 24      # bins processed per chunk (memory bound)
     compute_visible_depth: bool = True
 
@@ -71,6 +76,10 @@ class PreprocessSettings:
             raise PreprocessError(f"refine must be 'lut', 'gaussian', 'parabola' or 'none', got {self.refine!r}")
         if self.background not in ("none", "median"):
             raise PreprocessError(f"background must be 'none' or 'median', got {self.background!r}")
+        if not 0.0 <= self.partial_shadow_ratio < 1.0:
+            raise PreprocessError(f"partial_shadow_ratio must be in [0, 1), got {self.partial_shadow_ratio}")
+        if not (self.partial_shadow_z >= 0 and self.same_surface_bins > 0):
+            raise PreprocessError("partial_shadow_z must be >= 0 and same_surface_bins > 0")
         if self.pulse_half_width_bins < 1:
             raise PreprocessError("pulse_half_width_bins must be >= 1")
 
@@ -264,6 +273,69 @@ def find_first_bounce(tr: Transient, sensor, laser_direction, spot_id, settings:
 
 # ---------------------------------------------------------------- per spot
 
+MIN_BACKGROUND_BINS = 16   # gates at least this wide give each pixel's background rate as their median bin
+
+
+@dataclass
+class FilterOutput:
+    confidence: np.ndarray   # (H, W) max of the normalised matched filter, in [0, 1]
+    amplitude: np.ndarray    # (H, W) raw matched-filter maximum
+    path: np.ndarray         # (H, W) sub-bin two-bounce path (m) at the filter peak
+    counts: np.ndarray       # (H, W) gated photons less the background estimate (>= 0)
+    variance: np.ndarray     # (H, W) their Poisson variance: all gated photons
+
+
+def _shifted(a: np.ndarray, dy: int, dx: int, fill) -> np.ndarray:
+    """b[r, c] = a[r + dy, c + dx], `fill` outside the image."""
+    h, w = a.shape
+    out = np.full_like(a, fill)
+    out[max(-dy, 0):h - max(dy, 0), max(-dx, 0):w - max(dx, 0)] = \
+        a[max(dy, 0):h - max(-dy, 0), max(dx, 0):w - max(-dx, 0)]
+    return out
+
+
+def partial_shadow_mask(counts, variance, path, lit, excluded, bin_width_m, settings: PreprocessSettings) -> np.ndarray:
+    """Lit pixels that a thin shadow (a leg's, about one pixel wide) covers in part.
+
+    The normalised matched filter is blind to them: its confidence does not depend on how many photons
+    arrive. Such a pixel receives a fraction of what its unshadowed neighbours on the same surface receive
+    (two-bounce shading varies slowly across 1-2 pixels), while a pixel on a plain surface lies between
+    its neighbours. For each of 4 directions and neighbour pairs at (1, 1), (1, 2), (2, 1) pixels on either
+    side, both lit and within `same_surface_bins` of the pixel's path, the dimmer of the two is a lower
+    bound of what the pixel would receive lit, E (the largest over pairs). The pixel is a partial shadow
+    when counts < ratio E by more than `partial_shadow_z` Poisson standard deviations of the difference
+    (variance: the pixel's gated photons + ratio^2 that of the neighbour). Shadow edges (one side dark)
+    and depth edges (one side another surface) never qualify; neither do pixels without lit neighbours.
+    """
+    ratio, z = settings.partial_shadow_ratio, settings.partial_shadow_z
+    tol = settings.same_surface_bins * bin_width_m
+    s = np.where(lit, counts, 0.0).astype(np.float64)
+    v = np.asarray(variance, np.float64)
+    p = np.where(lit, path, np.nan).astype(np.float64)
+    dark = ~np.asarray(lit, bool) & ~np.asarray(excluded, bool)
+    best, best_var = np.zeros_like(s), np.zeros_like(s)
+    with np.errstate(invalid="ignore"):
+        for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
+            for a, b in ((1, 1), (1, 2), (2, 1)):
+                s1, s2 = _shifted(s, -a * dy, -a * dx, 0.0), _shifted(s, b * dy, b * dx, 0.0)
+                p1, p2 = _shifted(p, -a * dy, -a * dx, np.nan), _shifted(p, b * dy, b * dx, np.nan)
+                ok1, ok2 = np.abs(p1 - p) <= tol, np.abs(p2 - p) <= tol
+                d1, d2 = _shifted(dark, -a * dy, -a * dx, False), _shifted(dark, b * dy, b * dx, False)
+                v1, v2 = _shifted(v, -a * dy, -a * dx, 0.0), _shifted(v, b * dy, b * dx, 0.0)
+                # a valley (lit same-surface pixels on both sides) or the rim of a shadow (one side dark)
+                e = np.where(ok1 & ok2, np.minimum(s1, s2), 0.0)
+                ev = np.where(s1 <= s2, v1, v2)
+                if settings.partial_shadow_edges:
+                    e1, e2 = np.where(ok1 & d2, s1, 0.0), np.where(ok2 & d1, s2, 0.0)
+                    ev = np.where(e1 > e, v1, ev)
+                    e = np.maximum(e, e1)
+                    ev = np.where(e2 > e, v2, ev)
+                    e = np.maximum(e, e2)
+                take = e > best
+                best, best_var = np.where(take, e, best), np.where(take, ev, best_var)
+    deficit = ratio * best - s
+    return lit & (deficit > 0) & (deficit > z * np.sqrt(v + ratio * ratio * best_var))
+
 def world_pixel_directions(sensor) -> np.ndarray:
     c2w = np.asarray(sensor.camera_to_world, np.float64)
     return camera_ray_directions(sensor.width, sensor.height, sensor.fov_rad, sensor.fov_axis) @ c2w[:3, :3].T
@@ -297,6 +369,8 @@ def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: Prepro
     rows_per_chunk = max(1, settings.chunk_elements // max(w * g, 1))
     conf = np.zeros((h, w), np.float32)
     amp = np.zeros((h, w), np.float32)
+    counts = np.zeros((h, w), np.float32)
+    variance = np.zeros((h, w), np.float32)
     path = np.full((h, w), np.nan, np.float32)
     if dense:   # centres stop h bins before the end, so the padded view below needs no copy
         gate_hi = min(gate_hi, sensor.bins - hw)
@@ -321,6 +395,13 @@ def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: Prepro
                 xp[:, :-a] = 0
         gg = xp.shape[1] - 2 * hw
         total = xp[:, hw:hw + gg].sum(dim=1)
+        # photons of the two-bounce return: the gated sum less the background, whose rate per bin is the
+        # median of a wide gate (a return fills a few bins); a narrow window holds no background (the
+        # simulator stores only non-zero bins when there is none). Poisson: variance = signal + background.
+        if gg >= MIN_BACKGROUND_BINS and settings.background != "median":
+            bg = xp[:, hw:hw + gg].median(dim=1).values * gg
+        else:
+            bg = torch.zeros_like(total)
         # correlation with a short pulse: a few shifted multiply-adds beat conv1d and FFT here
         (j0, p0), rest = taps[0], taps[1:]
         corr = xp[:, j0:j0 + gg] * p0
@@ -337,8 +418,10 @@ def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: Prepro
         p = sensor.start_m + (base + kk).to(torch.float64) * bw + (0.5 + off.to(torch.float64)) * bw
         conf[r0:r1] = c.reshape(r1 - r0, w).cpu().numpy()
         amp[r0:r1] = m.reshape(r1 - r0, w).cpu().numpy()
+        counts[r0:r1] = (total - bg).clamp_min(0).reshape(r1 - r0, w).cpu().numpy()
+        variance[r0:r1] = total.reshape(r1 - r0, w).cpu().numpy()
         path[r0:r1] = p.reshape(r1 - r0, w).to(torch.float32).cpu().numpy()
-    return np.clip(conf, 0.0, 1.0), amp, path
+    return FilterOutput(np.clip(conf, 0.0, 1.0), amp, path, counts, variance)
 
 
 def process_spot(tr: Transient, sensor, spot, settings: PreprocessSettings, device="cpu", dirs=None,
@@ -353,13 +436,16 @@ def process_spot(tr: Transient, sensor, spot, settings: PreprocessSettings, devi
             warnings.warn(f"spot {spot.id}: first bounce estimated from the transient {np.round(fb.point, 4).tolist()} "
                           f"is {err:.4f} m from the recorded one {np.round(rec, 4).tolist()} "
                           f"(tolerance {settings.first_bounce_tolerance_m} m)", stacklevel=2)
-    conf, amp, path = matched_filter_spot(tr, sensor, fb, settings, device)
+    mf = matched_filter_spot(tr, sensor, fb, settings, device)
+    conf, amp, path = mf.confidence, mf.amplitude, mf.path
     if dirs is None:
         dirs = world_pixel_directions(sensor)
     c = np.asarray(sensor.camera_to_world, np.float64)[:3, 3]
     excluded = parallel_mask(dirs, c, fb.point, settings.parallel_sin)
     excluded[fb.pixel] = True
     signal = (conf >= settings.shadow_threshold) & ~excluded
+    if settings.partial_shadow_ratio > 0:
+        signal &= ~partial_shadow_mask(mf.counts, mf.variance, path, signal, excluded, sensor.bin_width_m, settings)
     path = np.where(signal, path, np.nan).astype(np.float32)
     ld = np.asarray(spot.laser_direction, np.float64)
     return SpotMeasurement(
