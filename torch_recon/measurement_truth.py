@@ -127,13 +127,15 @@ def measurement_accuracy(meas, truths: list[SpotTruth], bin_width_m: float) -> d
     """Pooled over spots and usable pixels (not excluded, a surface in the truth): see the module docstring."""
     tp = fp = fn = 0
     thin_tp = thin_n = obj_tp = obj_n = part_tp = part_n = 0
-    lit_n = lit_fa = 0
+    lit_n = lit_fa = n_usable = n_unlabelled = 0
     errs = []
     for sm, t in zip(meas.spots, truths):
         usable = ~np.asarray(sm.excluded, bool) & np.isfinite(t.lit_fraction)
         f = np.nan_to_num(t.lit_fraction, nan=1.0)
         truth = (f < 0.5) & usable
         pred = np.asarray(sm.shadow, bool) & usable
+        n_usable += int(usable.sum())
+        n_unlabelled += int((usable & ~pred & ~np.asarray(sm.signal, bool)).sum())
         tp += int((pred & truth).sum())
         fp += int((pred & ~truth & usable).sum())
         fn += int((~pred & truth).sum())
@@ -160,7 +162,7 @@ def measurement_accuracy(meas, truths: list[SpotTruth], bin_width_m: float) -> d
             "thin_shadow_recall": ratio(thin_tp, thin_n), "n_thin_shadow": thin_n,
             "object_shadow_recall": ratio(obj_tp, obj_n), "n_object_shadow": obj_n,
             "partial_shadow_recall": ratio(part_tp, part_n), "n_partial_shadow": part_n,
-            "false_shadow_rate": ratio(lit_fa, lit_n), "n_truth_shadow": tp + fn,
+            "false_shadow_rate": ratio(lit_fa, lit_n), "unlabelled_rate": ratio(n_unlabelled, n_usable), "n_truth_shadow": tp + fn,
             "path_median_mm": float(np.median(np.abs(e)) * 1e3) if e.size else float("nan"),
             "path_p95_mm": float(np.percentile(np.abs(e), 95) * 1e3) if e.size else float("nan"),
             "path_bias_mm": float(np.median(e) * 1e3) if e.size else float("nan"),

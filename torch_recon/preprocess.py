@@ -59,12 +59,17 @@ class PreprocessSettings:
                                        # both sides (within 2 px): a thin shadow covers part of it (0: off)
     partial_shadow_z: float = 2.0      # ... and the deficit exceeds this many Poisson standard deviations
     partial_shadow_edges: bool = True  # also the rim of a shadow: dimmer than ratio x the lit side
+    photon_statistics: str = "auto"    # 'poisson': values are photon counts; 'none': expected values (no
+                                       # counting noise); 'auto': 'poisson' when every stored value is an integer
+    shadow_false_alarm: float = 0.05  # a dark pixel next to lit ones is a shadow only where a lit pixel
+                                      # that dark has a Poisson probability below this (else unlabelled; 0: off)
     same_surface_bins: float = 2.0     # neighbours count as the same surface within this many bins of path
     chunk_elements: int = 1 << 24      # bins processed per chunk (memory bound)
     compute_visible_depth: bool = True
 
     SETTINGS_META = {"refine": {"choices": ("lut", "gaussian", "parabola", "none")},
-                     "background": {"choices": ("none", "median")}, "shadow_threshold": {"range": (0.0, 1.0)},
+                     "background": {"choices": ("none", "median")},
+                     "photon_statistics": {"choices": ("auto", "poisson", "none")}, "shadow_threshold": {"range": (0.0, 1.0)},
                      "gate_max_m": {"unit": "m"}}
 
     def validate(self):
@@ -78,6 +83,10 @@ class PreprocessSettings:
             raise PreprocessError(f"background must be 'none' or 'median', got {self.background!r}")
         if not 0.0 <= self.partial_shadow_ratio < 1.0:
             raise PreprocessError(f"partial_shadow_ratio must be in [0, 1), got {self.partial_shadow_ratio}")
+        if self.photon_statistics not in ("auto", "poisson", "none"):
+            raise PreprocessError(f"photon_statistics must be 'auto', 'poisson' or 'none', got {self.photon_statistics!r}")
+        if not 0.0 <= self.shadow_false_alarm < 1.0:
+            raise PreprocessError(f"shadow_false_alarm must be in [0, 1), got {self.shadow_false_alarm}")
         if not (self.partial_shadow_z >= 0 and self.same_surface_bins > 0):
             raise PreprocessError("partial_shadow_z must be >= 0 and same_surface_bins > 0")
         if self.pulse_half_width_bins < 1:
@@ -283,6 +292,7 @@ class FilterOutput:
     path: np.ndarray         # (H, W) sub-bin two-bounce path (m) at the filter peak
     counts: np.ndarray       # (H, W) gated photons less the background estimate (>= 0)
     variance: np.ndarray     # (H, W) their Poisson variance: all gated photons
+    background: np.ndarray   # (H, W) the background estimate: photons the gate holds without a return
 
 
 def _shifted(a: np.ndarray, dy: int, dx: int, fill) -> np.ndarray:
@@ -292,6 +302,41 @@ def _shifted(a: np.ndarray, dy: int, dx: int, fill) -> np.ndarray:
     out[max(-dy, 0):h - max(dy, 0), max(-dx, 0):w - max(dx, 0)] = \
         a[max(dy, 0):h - max(-dy, 0), max(dx, 0):w - max(-dx, 0)]
     return out
+
+
+def photon_counting(tr: Transient, settings: PreprocessSettings) -> bool:
+    """Whether the transient holds photon counts (Poisson statistics apply) or expected values."""
+    if settings.photon_statistics != "auto":
+        return settings.photon_statistics == "poisson"
+    w = tr.window
+    return bool(np.array_equal(w, np.round(w)))
+
+
+def unsupported_shadow_mask(mf: FilterOutput, lit, excluded, alpha: float) -> np.ndarray:
+    """Dark pixels whose darkness is no evidence of shadow: Poisson likelihood ratio below 1 / alpha.
+
+    A pixel without a return is a shadow only if the light it would receive lit, lam (the mean photons of
+    its lit 3 x 3 neighbours), would rarely give so few photons: with n gated photons and a background
+    of B, log LR(shadow : lit) = lam - n log(1 + lam / B) (B = 0: lam if n = 0, else -inf). A dim surface
+    (a dark wall, grazing light) whose lit pixels hold 1-2 photons gives zero photons often (e^-2 = 14 %):
+    those zeros are left unlabelled (neither lit nor shadow), not called shadows. Pixels inside a shadow
+    (no lit neighbour) are not touched.
+    """
+    lit = np.asarray(lit, bool)
+    c = np.where(lit, mf.counts, 0.0).astype(np.float64)
+    total, n_lit = np.zeros_like(c), np.zeros_like(c)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dy or dx:
+                total += _shifted(c, dy, dx, 0.0)
+                n_lit += _shifted(lit.astype(np.float64), dy, dx, 0.0)
+    lam = total / np.maximum(n_lit, 1.0)
+    n = np.asarray(mf.variance, np.float64)          # all gated photons of the pixel
+    b = np.asarray(mf.background, np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        llr = np.where(b > 0, lam - n * np.log1p(lam / np.maximum(b, 1e-30)), np.where(n > 0, -np.inf, lam))
+    dark = ~lit & ~np.asarray(excluded, bool)
+    return dark & (n_lit > 0) & (llr < math.log(1.0 / alpha))
 
 
 def partial_shadow_mask(counts, variance, path, lit, excluded, bin_width_m, settings: PreprocessSettings) -> np.ndarray:
@@ -371,6 +416,7 @@ def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: Prepro
     amp = np.zeros((h, w), np.float32)
     counts = np.zeros((h, w), np.float32)
     variance = np.zeros((h, w), np.float32)
+    background = np.zeros((h, w), np.float32)
     path = np.full((h, w), np.nan, np.float32)
     if dense:   # centres stop h bins before the end, so the padded view below needs no copy
         gate_hi = min(gate_hi, sensor.bins - hw)
@@ -420,8 +466,9 @@ def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: Prepro
         amp[r0:r1] = m.reshape(r1 - r0, w).cpu().numpy()
         counts[r0:r1] = (total - bg).clamp_min(0).reshape(r1 - r0, w).cpu().numpy()
         variance[r0:r1] = total.reshape(r1 - r0, w).cpu().numpy()
+        background[r0:r1] = bg.reshape(r1 - r0, w).cpu().numpy()
         path[r0:r1] = p.reshape(r1 - r0, w).to(torch.float32).cpu().numpy()
-    return FilterOutput(np.clip(conf, 0.0, 1.0), amp, path, counts, variance)
+    return FilterOutput(np.clip(conf, 0.0, 1.0), amp, path, counts, variance, background)
 
 
 def process_spot(tr: Transient, sensor, spot, settings: PreprocessSettings, device="cpu", dirs=None,
@@ -444,6 +491,12 @@ def process_spot(tr: Transient, sensor, spot, settings: PreprocessSettings, devi
     excluded = parallel_mask(dirs, c, fb.point, settings.parallel_sin)
     excluded[fb.pixel] = True
     signal = (conf >= settings.shadow_threshold) & ~excluded
+    counting = photon_counting(tr, settings)
+    if not counting:          # expected values: no counting noise, a dark pixel is dark
+        mf.variance = np.zeros_like(mf.variance)
+    # darkness is judged against the lit pixels of the matched filter, before partial shadows join the dark
+    unlabelled = unsupported_shadow_mask(mf, signal, excluded, settings.shadow_false_alarm) \
+        if counting and settings.shadow_false_alarm > 0 else np.zeros_like(signal)
     if settings.partial_shadow_ratio > 0:
         signal &= ~partial_shadow_mask(mf.counts, mf.variance, path, signal, excluded, sensor.bin_width_m, settings)
     path = np.where(signal, path, np.nan).astype(np.float32)
@@ -451,7 +504,7 @@ def process_spot(tr: Transient, sensor, spot, settings: PreprocessSettings, devi
     return SpotMeasurement(
         spot_id=int(spot.id), first_bounce=fb.point.astype(np.float64), laser_direction=ld / np.linalg.norm(ld),
         path_length=path, signal=signal, shadow_confidence=conf.astype(np.float32),
-        shadow=(~signal) & ~excluded, excluded=excluded, first_bounce_pixel=fb.pixel,
+        shadow=(~signal) & ~excluded & ~unlabelled, excluded=excluded, first_bounce_pixel=fb.pixel,
         pulse=fb.pulse.astype(np.float32), first_bounce_path_m=float(fb.path_m), amplitude=amp,
         first_bounce_recorded=None if rec is None else np.asarray(rec, np.float64))
 
