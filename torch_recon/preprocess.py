@@ -370,8 +370,15 @@ def partial_shadow_mask(counts, variance, path, lit, excluded, bin_width_m, sett
                 # a valley (lit same-surface pixels on both sides) or the rim of a shadow (one side dark)
                 e = np.where(ok1 & ok2, np.minimum(s1, s2), 0.0)
                 ev = np.where(s1 <= s2, v1, v2)
-                if settings.partial_shadow_edges:
-                    e1, e2 = np.where(ok1 & d2, s1, 0.0), np.where(ok2 & d1, s2, 0.0)
+                if settings.partial_shadow_edges and (a, b) == (1, 1):
+                    # the rim: the lit side's trend, extrapolated to the pixel, bounds it (shading that falls
+                    # steeply towards a depth or attached-shadow edge is not a cast shadow)
+                    s1b, s2b = _shifted(s, -2 * dy, -2 * dx, 0.0), _shifted(s, 2 * dy, 2 * dx, 0.0)
+                    p1b, p2b = _shifted(p, -2 * dy, -2 * dx, np.nan), _shifted(p, 2 * dy, 2 * dx, np.nan)
+                    t1 = ok1 & d2 & (np.abs(p1b - p) <= 2 * tol)
+                    t2 = ok2 & d1 & (np.abs(p2b - p) <= 2 * tol)
+                    e1 = np.where(t1, np.minimum(s1, 2 * s1 - s1b), 0.0)
+                    e2 = np.where(t2, np.minimum(s2, 2 * s2 - s2b), 0.0)
                     ev = np.where(e1 > e, v1, ev)
                     e = np.maximum(e, e1)
                     ev = np.where(e2 > e, v2, ev)
