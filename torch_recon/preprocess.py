@@ -17,6 +17,9 @@ Per spot k (paths in metres of optical path, bin centres start_m + (j + 0.5) w):
 4. Matched filter (as the PlatoNeRF code): correlate each pixel with the unit-sum
    pulse, divide by the pixel's (gated) sum; the maximum is the shadow confidence.
    Below `shadow_threshold` -> shadow, otherwise the pixel saw l_k (signal).
+   Then the photon counts (torch_recon.shadow_decision): a lit pixel far dimmer than its
+   same-surface lit neighbours is partly covered by a thin shadow -> shadow; a dark pixel whose
+   darkness is no evidence of shadow under Poisson statistics -> unlabelled (neither).
 5. Sub-bin peak: at the raw maximum next to the matched-filter peak, the 3-bin
    ratio r = (x+ - x-) / (x- + x0 + x+) is inverted through a lookup table built
    from a Gaussian pulse model whose width is fitted to the first-bounce return
@@ -39,6 +42,7 @@ from .contract.dataset.transient import Transient
 from .contract.frames import camera_ray_directions, focal_length_px
 from .contract.errors import PlatolidarError
 from .measurements import Measurements, SpotMeasurement
+from .shadow_decision import FilterOutput, partial_shadow_mask, photon_counting, unsupported_shadow_mask
 
 
 class PreprocessError(PlatolidarError, ValueError):
@@ -282,112 +286,6 @@ def find_first_bounce(tr: Transient, sensor, laser_direction, spot_id, settings:
 
 # ---------------------------------------------------------------- per spot
 
-MIN_BACKGROUND_BINS = 16   # gates at least this wide give each pixel's background rate as their median bin
-
-
-@dataclass
-class FilterOutput:
-    confidence: np.ndarray   # (H, W) max of the normalised matched filter, in [0, 1]
-    amplitude: np.ndarray    # (H, W) raw matched-filter maximum
-    path: np.ndarray         # (H, W) sub-bin two-bounce path (m) at the filter peak
-    counts: np.ndarray       # (H, W) gated photons less the background estimate (>= 0)
-    variance: np.ndarray     # (H, W) their Poisson variance: all gated photons
-    background: np.ndarray   # (H, W) the background estimate: photons the gate holds without a return
-
-
-def _shifted(a: np.ndarray, dy: int, dx: int, fill) -> np.ndarray:
-    """b[r, c] = a[r + dy, c + dx], `fill` outside the image."""
-    h, w = a.shape
-    out = np.full_like(a, fill)
-    out[max(-dy, 0):h - max(dy, 0), max(-dx, 0):w - max(dx, 0)] = \
-        a[max(dy, 0):h - max(-dy, 0), max(dx, 0):w - max(-dx, 0)]
-    return out
-
-
-def photon_counting(tr: Transient, settings: PreprocessSettings) -> bool:
-    """Whether the transient holds photon counts (Poisson statistics apply) or expected values."""
-    if settings.photon_statistics != "auto":
-        return settings.photon_statistics == "poisson"
-    w = tr.window
-    return bool(np.array_equal(w, np.round(w)))
-
-
-def unsupported_shadow_mask(mf: FilterOutput, lit, excluded, alpha: float) -> np.ndarray:
-    """Dark pixels whose darkness is no evidence of shadow: Poisson likelihood ratio below 1 / alpha.
-
-    A pixel without a return is a shadow only if the light it would receive lit, lam (the mean photons of
-    its lit 3 x 3 neighbours), would rarely give so few photons: with n gated photons and a background
-    of B, log LR(shadow : lit) = lam - n log(1 + lam / B) (B = 0: lam if n = 0, else -inf). A dim surface
-    (a dark wall, grazing light) whose lit pixels hold 1-2 photons gives zero photons often (e^-2 = 14 %):
-    those zeros are left unlabelled (neither lit nor shadow), not called shadows. Pixels inside a shadow
-    (no lit neighbour) are not touched.
-    """
-    lit = np.asarray(lit, bool)
-    c = np.where(lit, mf.counts, 0.0).astype(np.float64)
-    total, n_lit = np.zeros_like(c), np.zeros_like(c)
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            if dy or dx:
-                total += _shifted(c, dy, dx, 0.0)
-                n_lit += _shifted(lit.astype(np.float64), dy, dx, 0.0)
-    lam = total / np.maximum(n_lit, 1.0)
-    n = np.asarray(mf.variance, np.float64)          # all gated photons of the pixel
-    b = np.asarray(mf.background, np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        llr = np.where(b > 0, lam - n * np.log1p(lam / np.maximum(b, 1e-30)), np.where(n > 0, -np.inf, lam))
-    dark = ~lit & ~np.asarray(excluded, bool)
-    return dark & (n_lit > 0) & (llr < math.log(1.0 / alpha))
-
-
-def partial_shadow_mask(counts, variance, path, lit, excluded, bin_width_m, settings: PreprocessSettings) -> np.ndarray:
-    """Lit pixels that a thin shadow (a leg's, about one pixel wide) covers in part.
-
-    The normalised matched filter is blind to them: its confidence does not depend on how many photons
-    arrive. Such a pixel receives a fraction of what its unshadowed neighbours on the same surface receive
-    (two-bounce shading varies slowly across 1-2 pixels), while a pixel on a plain surface lies between
-    its neighbours. For each of 4 directions and neighbour pairs at (1, 1), (1, 2), (2, 1) pixels on either
-    side, both lit and within `same_surface_bins` of the pixel's path, the dimmer of the two is a lower
-    bound of what the pixel would receive lit, E (the largest over pairs). The pixel is a partial shadow
-    when counts < ratio E by more than `partial_shadow_z` Poisson standard deviations of the difference
-    (variance: the pixel's gated photons + ratio^2 that of the neighbour). Shadow edges (one side dark)
-    and depth edges (one side another surface) never qualify; neither do pixels without lit neighbours.
-    """
-    ratio, z = settings.partial_shadow_ratio, settings.partial_shadow_z
-    tol = settings.same_surface_bins * bin_width_m
-    s = np.where(lit, counts, 0.0).astype(np.float64)
-    v = np.asarray(variance, np.float64)
-    p = np.where(lit, path, np.nan).astype(np.float64)
-    dark = ~np.asarray(lit, bool) & ~np.asarray(excluded, bool)
-    best, best_var = np.zeros_like(s), np.zeros_like(s)
-    with np.errstate(invalid="ignore"):
-        for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
-            for a, b in ((1, 1), (1, 2), (2, 1)):
-                s1, s2 = _shifted(s, -a * dy, -a * dx, 0.0), _shifted(s, b * dy, b * dx, 0.0)
-                p1, p2 = _shifted(p, -a * dy, -a * dx, np.nan), _shifted(p, b * dy, b * dx, np.nan)
-                ok1, ok2 = np.abs(p1 - p) <= tol, np.abs(p2 - p) <= tol
-                d1, d2 = _shifted(dark, -a * dy, -a * dx, False), _shifted(dark, b * dy, b * dx, False)
-                v1, v2 = _shifted(v, -a * dy, -a * dx, 0.0), _shifted(v, b * dy, b * dx, 0.0)
-                # a valley (lit same-surface pixels on both sides) or the rim of a shadow (one side dark)
-                e = np.where(ok1 & ok2, np.minimum(s1, s2), 0.0)
-                ev = np.where(s1 <= s2, v1, v2)
-                if settings.partial_shadow_edges and (a, b) == (1, 1):
-                    # the rim: the lit side's trend, extrapolated to the pixel, bounds it (shading that falls
-                    # steeply towards a depth or attached-shadow edge is not a cast shadow)
-                    s1b, s2b = _shifted(s, -2 * dy, -2 * dx, 0.0), _shifted(s, 2 * dy, 2 * dx, 0.0)
-                    p1b, p2b = _shifted(p, -2 * dy, -2 * dx, np.nan), _shifted(p, 2 * dy, 2 * dx, np.nan)
-                    t1 = ok1 & d2 & (np.abs(p1b - p) <= 2 * tol)
-                    t2 = ok2 & d1 & (np.abs(p2b - p) <= 2 * tol)
-                    e1 = np.where(t1, np.minimum(s1, 2 * s1 - s1b), 0.0)
-                    e2 = np.where(t2, np.minimum(s2, 2 * s2 - s2b), 0.0)
-                    ev = np.where(e1 > e, v1, ev)
-                    e = np.maximum(e, e1)
-                    ev = np.where(e2 > e, v2, ev)
-                    e = np.maximum(e, e2)
-                take = e > best
-                best, best_var = np.where(take, e, best), np.where(take, ev, best_var)
-    deficit = ratio * best - s
-    return lit & (deficit > 0) & (deficit > z * np.sqrt(v + ratio * ratio * best_var))
-
 def world_pixel_directions(sensor) -> np.ndarray:
     c2w = np.asarray(sensor.camera_to_world, np.float64)
     return camera_ray_directions(sensor.width, sensor.height, sensor.fov_rad, sensor.fov_axis) @ c2w[:3, :3].T
@@ -399,6 +297,9 @@ def parallel_mask(dirs: np.ndarray, c, l, parallel_sin: float) -> np.ndarray:
     e /= max(np.linalg.norm(e), 1e-12)
     sin = np.linalg.norm(np.cross(dirs, e), axis=-1)
     return (sin < parallel_sin) & ((dirs @ e) > 0)
+
+
+MIN_BACKGROUND_BINS = 16   # gates at least this wide give each pixel's background rate as their median bin
 
 
 def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: PreprocessSettings, device="cpu"):
@@ -498,14 +399,13 @@ def process_spot(tr: Transient, sensor, spot, settings: PreprocessSettings, devi
     excluded = parallel_mask(dirs, c, fb.point, settings.parallel_sin)
     excluded[fb.pixel] = True
     signal = (conf >= settings.shadow_threshold) & ~excluded
-    counting = photon_counting(tr, settings)
-    if not counting:          # expected values: no counting noise, a dark pixel is dark
-        mf.variance = np.zeros_like(mf.variance)
+    counting = photon_counting(tr, settings)     # expected values: no counting noise, a dark pixel is dark
     # darkness is judged against the lit pixels of the matched filter, before partial shadows join the dark
     unlabelled = unsupported_shadow_mask(mf, signal, excluded, settings.shadow_false_alarm) \
         if counting and settings.shadow_false_alarm > 0 else np.zeros_like(signal)
     if settings.partial_shadow_ratio > 0:
-        signal &= ~partial_shadow_mask(mf.counts, mf.variance, path, signal, excluded, sensor.bin_width_m, settings)
+        signal &= ~partial_shadow_mask(mf.counts, mf.variance, path, signal, excluded, sensor.bin_width_m, settings,
+                                      poisson=counting)
     path = np.where(signal, path, np.nan).astype(np.float32)
     ld = np.asarray(spot.laser_direction, np.float64)
     return SpotMeasurement(

@@ -10,6 +10,12 @@
   test views as the paper tuned them per scene) and `torch_recon evaluate` on the dataset's test views.
 Visible-depth error: fused closed form against the ground-truth range at pixel centres, on pixels with a
 fused depth: median and 95th percentile in mm, and coverage.
+- 'shadows' rows: per example scene (Cycles, 16 spots) with expected values and with Poisson counts, the
+  shadow masks and two-bounce paths of each shadow decision against the ground truth ray cast in the
+  scene's mesh (torch_recon.measurement_truth: lit fraction of 3 x 3 sub-pixel rays, truth shadow below
+  one half): precision / recall / F1, recall on thin shadows, on shadows cast by labelled objects and on
+  partly lit shadow pixels, the false-shadow rate on fully lit pixels, unlabelled pixels, path error on
+  fully lit pixels; preprocessing timed in-process (1 thread).
 """
 
 from __future__ import annotations
@@ -30,6 +36,9 @@ class Settings:
     window_bins: int = 32
     test_views: int | None = None              # Cycles test views (None: the paper's 139)
     test_view_resolution: int = 128
+    shadow_scenes: tuple = ("cave-chair", "thin-structures", "dark-room", "organic-occluded")
+    shadow_resolution: int = 128
+    shadow_noise: tuple = ("expected", "poisson")   # simulator defaults / Poisson counts (1000 photons budget)
 
 
 def depth_error(depth, gt) -> dict:
@@ -103,6 +112,31 @@ def cycles_rows(ctx, s: Settings, res: int) -> list[dict]:
             runners.row("bflidar (grid search, reused measurements)", scene, b, source="cycles", resolution=res)]
 
 
+SHADOW_DECISIONS = {"matched filter (paper)": dict(partial_shadow_ratio=0.0, shadow_false_alarm=0.0),
+                    "photon-count test": {}}
+
+
+def shadow_rows(ctx, s: Settings, scene: str, noise: str) -> list[dict]:
+    """Each shadow decision's masks and paths against the ray-cast truth (see the module docstring)."""
+    from torch_recon.contract.dataset import load_dataset
+    from torch_recon.measurement_truth import measurement_accuracy, spot_truths
+    from torch_recon.preprocess import PreprocessSettings, preprocess_dataset
+    opts = {} if noise == "expected" else {"poisson": True, "test_views": "0"}
+    ds = load_dataset(ctx.dataset(scene, s.shadow_resolution, 16, **opts))
+    truths = spot_truths(ds)
+    rows = []
+    for name, kw in SHADOW_DECISIONS.items():
+        with ctx.timed() as t:
+            meas = preprocess_dataset(ds, PreprocessSettings(**kw))
+        acc = measurement_accuracy(meas, truths, ds.sensor.bin_width_m)
+        rows.append({"method": f"shadows: {name}", "scene": f"{scene} ({noise})", **t.times(), "source": "cycles",
+                     "resolution": s.shadow_resolution, "noise": noise, "spots": len(meas.spots), **acc})
+        ctx.log(f"  {scene} ({noise}) {name}: shadow P/R {acc['shadow_precision']:.4f}/{acc['shadow_recall']:.4f}, "
+                f"thin R {acc['thin_shadow_recall']:.3f}, object R {acc['object_shadow_recall']:.3f}, "
+                f"false {acc['false_shadow_rate']:.4f}, path median {acc['path_median_mm']:.3f} mm, {t.wall_s:.1f} s")
+    return rows
+
+
 def run(s: Settings, ctx) -> list[dict]:
     import torch
     torch.set_num_threads(s.threads)
@@ -113,6 +147,9 @@ def run(s: Settings, ctx) -> list[dict]:
         rows += analytic_rows(ctx, s, s.poisson_resolution, subpixel=3, photons=2000.0, ambient=0.01)
     for res in s.cycles_resolutions:
         rows += cycles_rows(ctx, s, res)
+    for scene in s.shadow_scenes:
+        for noise in s.shadow_noise:
+            rows += shadow_rows(ctx, s, scene, noise)
     for r in rows:
         if "visible_depth_median_mm" in r:
             ctx.log(f"  {r['scene']} {r['resolution']} px {r['method']}: {r['wall_s']:.2f} s, visible depth median "
@@ -122,6 +159,7 @@ def run(s: Settings, ctx) -> list[dict]:
 
 def readme(results) -> str:
     prep = [r for r in results["rows"] if "visible_depth_median_mm" in r]
+    shadows = [r for r in results["rows"] if r["method"].startswith("shadows:")]
     bfl = [r for r in results["rows"] if r["method"].startswith("bflidar")]
     out = report.markdown_table(prep, [("scene", "data"), ("resolution", "px"), ("method", "stage"),
                                        ("wall_s", "wall s"), ("visible_depth_median_mm", "visible depth median mm"),
@@ -130,13 +168,26 @@ def readme(results) -> str:
         out += "\n\n" + report.markdown_table(bfl, [("scene", "BF Lidar on"), ("resolution", "px"), ("wall_s", "wall s"),
                                                    ("depth_l1_m", "depth L1 m"), ("depth_l1_m_on_hits", "L1 on hits m"),
                                                    ("depth_psnr_db", "PSNR dB"), ("n_test_views", "test views")])
+    if shadows:
+        out += "\n\n" + report.markdown_table(shadows, [
+            ("scene", "scene (data)"), ("method", "shadow decision"), ("wall_s", "preprocess s"),
+            ("shadow_precision", "precision"), ("shadow_recall", "recall"), ("shadow_f1", "F1"),
+            ("thin_shadow_recall", "thin R"), ("object_shadow_recall", "object R"),
+            ("partial_shadow_recall", "partial R"), ("false_shadow_rate", "false on lit"),
+            ("unlabelled_rate", "unlabelled"), ("path_median_mm", "path median mm"), ("path_p95_mm", "path p95 mm")])
     return out
 
 
-SUITE = Suite("measurements", __doc__.splitlines()[0], run=run, readme=readme,
-              plot=lambda rows, s, path: report.plot_rows(
-                  [r for r in rows if "visible_depth_median_mm" in r], path, y="visible_depth_median_mm",
-                  title="preprocessing time vs visible-depth error"),
+def plot(rows, s, path):
+    prep = [r for r in rows if "visible_depth_median_mm" in r]
+    if prep:
+        return report.plot_rows(prep, path, y="visible_depth_median_mm", title="preprocessing time vs visible-depth error")
+    return report.plot_rows([r for r in rows if r["method"].startswith("shadows:")], path, y="shadow_f1",
+                            title="shadow F1 against the ray-cast truth vs preprocessing time")
+
+
+SUITE = Suite("measurements", __doc__.splitlines()[0], run=run, readme=readme, plot=plot,
               quick=Settings(analytic_resolutions=(32,), poisson_resolution=32, cycles_resolutions=(32,),
-                             test_views=6, test_view_resolution=32),
+                             test_views=6, test_view_resolution=32, shadow_scenes=("thin-structures",),
+                             shadow_resolution=32),
               full=Settings())

@@ -1,0 +1,154 @@
+"""Shadow decisions from photon counts: partial (thin) shadows, the Poisson check of dark pixels, and the
+ground-truth measurements (torch_recon.measurement_truth) that score them."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from torch_recon.contract.dataset import load_dataset
+from torch_recon.contract.synthetic import default_sensor, occluder_scene, paper_laser_directions, write_analytic_dataset
+from torch_recon.preprocess import PreprocessError, PreprocessSettings, preprocess_dataset
+from torch_recon.shadow_decision import FilterOutput, partial_shadow_mask, unsupported_shadow_mask
+
+BW = 0.0384     # metres of path per bin (the paper's 128 ps)
+
+
+def _lit_wall(rng, photons, shape=(64, 64)):
+    """Poisson counts of a lit wall whose shading falls by half across the image (one surface: one path)."""
+    h, w = shape
+    lam = photons * (1.0 - 0.5 * np.arange(w) / w)[None, :] * np.ones((h, 1))
+    path = np.full(shape, 6.0) + 0.002 * np.arange(w)[None, :]
+    return lam, path
+
+
+def _partial(counts, path, lit=None, **kw):
+    lit = counts > 0 if lit is None else lit
+    return partial_shadow_mask(counts, counts, path, lit, np.zeros(counts.shape, bool), BW, PreprocessSettings(**kw))
+
+
+def test_one_pixel_wide_partial_shadow_is_found_at_200_photons():
+    """A leg one pixel wide shadows 75 % of a column of pixels (lit fraction 0.25) on a wall whose lit
+    pixels receive 100-200 photons: the matched filter calls all of them lit; the count test finds >= 95 %."""
+    rng = np.random.default_rng(0)
+    lam, path = _lit_wall(rng, 200.0)
+    lam[:, 31] *= 0.25
+    counts = rng.poisson(lam).astype(np.float64)
+    found = _partial(counts, path)
+    assert found[2:-2, 31].mean() >= 0.95, found[:, 31].mean()
+    off = np.ones_like(found)
+    off[:, 30:33] = False
+    assert found[off].mean() <= 0.001, found[off].mean()        # no false alarm on the plain, shaded wall
+    # two pixels wide (each lit to 25 %): the (1, 2) / (2, 1) neighbour pairs still bracket it
+    lam2, _ = _lit_wall(rng, 200.0)
+    lam2[:, 20:22] *= 0.25
+    found2 = _partial(rng.poisson(lam2).astype(np.float64), path)
+    assert found2[2:-2, 20:22].mean() >= 0.9
+
+
+def test_partial_shadow_needs_the_same_surface_and_enough_photons():
+    rng = np.random.default_rng(1)
+    lam, path = _lit_wall(rng, 200.0)
+    lam[:, 31] *= 0.25
+    counts = rng.poisson(lam).astype(np.float64)
+    far = path.copy()
+    far[:, 31] += 10 * BW          # the dim column is another surface (a depth edge): no shadow claimed
+    assert not _partial(counts, far).any()
+    # at 4 photons per lit pixel a 25 % column is within Poisson noise: the z test keeps it lit (mostly)
+    dim = rng.poisson(lam * 0.02).astype(np.float64)
+    assert _partial(dim, path)[:, 31].mean() < 0.5
+    assert _partial(dim, path)[:, :30].mean() < 0.01
+
+
+def test_shadow_rim_follows_the_lit_fraction_not_steep_shading():
+    rng = np.random.default_rng(2)
+    lam, path = _lit_wall(rng, 500.0)
+    lit = np.ones(lam.shape, bool)
+    lam[:, 41:] = 0.0
+    lit[:, 41:] = False            # a cast shadow from column 41 on
+    lam[:, 40] *= 0.3              # its rim pixel is 30 % lit
+    counts = rng.poisson(lam).astype(np.float64)
+    assert _partial(counts, path, lit)[2:-2, 40].mean() >= 0.95
+    # shading that falls steeply towards the rim (x 0.6 per pixel) is not a shadow
+    steep = 500.0 * 0.6 ** np.maximum(40 - np.arange(64), 0)[None, :] * np.ones((64, 1)) + 0.0
+    steep[:, 41:] = 0.0
+    counts = rng.poisson(np.maximum(steep, 1000.0 * 0.6 ** 3 * (np.arange(64) <= 40))).astype(np.float64)
+    assert not _partial(counts, path, lit)[:, 40].any()
+    assert not _partial(counts, path, lit, partial_shadow_edges=False)[:, 40].any()
+
+
+def _filter(counts, background=0.0):
+    c = np.asarray(counts, np.float64)
+    return FilterOutput(confidence=(c > 0).astype(np.float32), amplitude=c.astype(np.float32), path=np.full(c.shape, 6.0),
+                        counts=c.astype(np.float32), variance=(c + background).astype(np.float32),
+                        background=np.full(c.shape, background, np.float32))
+
+
+def test_zero_photons_on_a_dim_lit_wall_are_not_shadows():
+    """A wall lit with 1.5 photons per pixel (no background): e^-1.5 = 22 % of its pixels record nothing.
+    The matched filter calls those shadows; the Poisson check (false-alarm 0.05) leaves them unlabelled, so
+    under 1 % of the wall is called shadow. Next to a wall receiving 20 photons, a dark pixel is a shadow."""
+    rng = np.random.default_rng(3)
+    counts = rng.poisson(1.5, size=(64, 64)).astype(np.float64)
+    lit = counts > 0
+    none = np.zeros(lit.shape, bool)
+    assert (~lit).mean() > 0.15                                    # what the matched filter alone calls shadow
+    unlabelled = unsupported_shadow_mask(_filter(counts), lit, none, 0.05)
+    assert (~lit & ~unlabelled).mean() < 0.01
+    # a real shadow beside a bright lit region keeps its label, its interior too
+    bright = rng.poisson(20.0, size=(64, 64)).astype(np.float64)
+    bright[:, 32:] = 0.0
+    lit = bright > 0
+    unl = unsupported_shadow_mask(_filter(bright), lit, none, 0.05)
+    assert not unl[:, 32:].any()
+    # with a background of 5 photons per gate, 6 photons beside lit pixels of 25 are still a shadow,
+    # 20 photons are not evidence of one
+    c = np.full((8, 8), 25.0)
+    c[4, 4] = 0.0
+    f = _filter(c, background=5.0)
+    f.variance[4, 4] = 6.0
+    assert unsupported_shadow_mask(f, c > 0, np.zeros_like(c, bool), 0.05)[4, 4] == False  # noqa: E712
+    f.variance[4, 4] = 20.0
+    assert unsupported_shadow_mask(f, c > 0, np.zeros_like(c, bool), 0.05)[4, 4]
+
+
+@pytest.fixture(scope="module")
+def occluder_poisson(tmp_path_factory):
+    sensor = default_sensor(32, 32, bins=391)
+    lds = paper_laser_directions()[[0, 4]]
+    out = tmp_path_factory.mktemp("shadows")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        dense, _ = write_analytic_dataset(out / "exact", occluder_scene(), sensor, lds)
+        noisy, _ = write_analytic_dataset(out / "noisy", occluder_scene(), sensor, lds, photons_per_pixel=60.0)
+    return load_dataset(dense), load_dataset(noisy)
+
+
+def test_truth_and_accuracy_on_an_analytic_scene(occluder_poisson):
+    """measurement_truth reproduces the analytic renderer's shadows and paths; exact data score ~1."""
+    from torch_recon.measurement_truth import measurement_accuracy, spot_truths
+    exact, noisy = occluder_poisson
+    truths = spot_truths(exact, subpixel=1)
+    m = preprocess_dataset(exact)
+    acc = measurement_accuracy(m, truths, exact.sensor.bin_width_m)
+    assert acc["n_truth_shadow"] > 50
+    assert acc["shadow_precision"] > 0.97 and acc["shadow_recall"] > 0.97, acc
+    assert acc["path_median_mm"] < 0.5 and acc["false_shadow_rate"] < 0.02, acc
+    # 60 photons at the brightest pixel: dim pixels record nothing; the Poisson check keeps them unlabelled
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        new = measurement_accuracy(preprocess_dataset(noisy), truths, exact.sensor.bin_width_m)
+        old = measurement_accuracy(preprocess_dataset(noisy, PreprocessSettings(
+            partial_shadow_ratio=0.0, shadow_false_alarm=0.0)), truths, exact.sensor.bin_width_m)
+    assert new["shadow_precision"] >= old["shadow_precision"], (new, old)
+    assert new["false_shadow_rate"] <= old["false_shadow_rate"]
+    assert new["shadow_recall"] > 0.8, new
+
+
+def test_new_settings_are_checked():
+    for bad in (dict(partial_shadow_ratio=1.0), dict(partial_shadow_z=-1.0), dict(shadow_false_alarm=1.0),
+                dict(photon_statistics="gauss"), dict(same_surface_bins=0.0)):
+        with pytest.raises(PreprocessError):
+            PreprocessSettings(**bad).validate()

@@ -1,0 +1,131 @@
+"""Shadow or lit, per spot and pixel, from the matched filter's output and the photon counts.
+
+The normalised matched-filter confidence (the PlatoNeRF rule, `preprocess`) says whether a pixel's
+transient holds a pulse-shaped return; it cannot see how many photons arrive. Two decisions here use
+the counts (numpy on (H, W) images of one spot; the statistics are Poisson when the transient holds
+integer photon counts, `photon_counting`):
+- `partial_shadow_mask`: a lit pixel receiving under `partial_shadow_ratio` of what its same-surface lit
+  neighbours receive is covered in part by a thin shadow (a leg about one pixel wide): shadow.
+- `unsupported_shadow_mask`: a dark pixel next to lit ones whose darkness a lit pixel that dim would
+  often produce (Poisson likelihood ratio below 1 / `shadow_false_alarm`): unlabelled, neither lit nor
+  shadow (the reconstructor neither carves through it nor builds along it).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .contract.dataset.transient import Transient
+
+
+@dataclass
+class FilterOutput:
+    confidence: np.ndarray   # (H, W) max of the normalised matched filter, in [0, 1]
+    amplitude: np.ndarray    # (H, W) raw matched-filter maximum
+    path: np.ndarray         # (H, W) sub-bin two-bounce path (m) at the filter peak
+    counts: np.ndarray       # (H, W) gated photons less the background estimate (>= 0)
+    variance: np.ndarray     # (H, W) their Poisson variance: all gated photons
+    background: np.ndarray   # (H, W) the background estimate: photons the gate holds without a return
+
+
+def _shifted(a: np.ndarray, dy: int, dx: int, fill) -> np.ndarray:
+    """b[r, c] = a[r + dy, c + dx], `fill` outside the image."""
+    h, w = a.shape
+    out = np.full_like(a, fill)
+    out[max(-dy, 0):h - max(dy, 0), max(-dx, 0):w - max(dx, 0)] = \
+        a[max(dy, 0):h - max(-dy, 0), max(dx, 0):w - max(-dx, 0)]
+    return out
+
+
+def photon_counting(tr: Transient, settings) -> bool:
+    """Whether the transient holds photon counts (Poisson statistics apply) or expected values."""
+    if settings.photon_statistics != "auto":
+        return settings.photon_statistics == "poisson"
+    w = tr.window
+    return bool(np.array_equal(w, np.round(w)))
+
+
+def unsupported_shadow_mask(mf: FilterOutput, lit, excluded, alpha: float) -> np.ndarray:
+    """Dark pixels whose darkness is no evidence of shadow: Poisson likelihood ratio below 1 / alpha.
+
+    A pixel without a return is a shadow only if the light it would receive lit, lam (the mean photons of
+    its lit 3 x 3 neighbours), would rarely give so few photons: with n gated photons and a background
+    of B, log LR(shadow : lit) = lam - n log(1 + lam / B) (B = 0: lam if n = 0, else -inf). A dim surface
+    (a dark wall, grazing light) whose lit pixels hold 1-2 photons gives zero photons often (e^-2 = 14 %):
+    those zeros are left unlabelled (neither lit nor shadow), not called shadows. Pixels inside a shadow
+    (no lit neighbour) are not touched.
+    """
+    lit = np.asarray(lit, bool)
+    c = np.where(lit, mf.counts, 0.0).astype(np.float64)
+    total, n_lit = np.zeros_like(c), np.zeros_like(c)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dy or dx:
+                total += _shifted(c, dy, dx, 0.0)
+                n_lit += _shifted(lit.astype(np.float64), dy, dx, 0.0)
+    lam = total / np.maximum(n_lit, 1.0)
+    n = np.asarray(mf.variance, np.float64)          # all gated photons of the pixel
+    b = np.asarray(mf.background, np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        llr = np.where(b > 0, lam - n * np.log1p(lam / np.maximum(b, 1e-30)), np.where(n > 0, -np.inf, lam))
+    dark = ~lit & ~np.asarray(excluded, bool)
+    return dark & (n_lit > 0) & (llr < math.log(1.0 / alpha))
+
+
+def partial_shadow_mask(counts, variance, path, lit, excluded, bin_width_m, settings,
+                        poisson: bool = True) -> np.ndarray:
+    """Lit pixels that a thin shadow (a leg's, about one pixel wide) covers in part.
+
+    The normalised matched filter is blind to them: its confidence does not depend on how many photons
+    arrive. Such a pixel receives a fraction of what its unshadowed neighbours on the same surface receive
+    (two-bounce shading varies slowly across 1-2 pixels), while a pixel on a plain surface lies between
+    its neighbours. For each of 4 directions and neighbour pairs at (1, 1), (1, 2), (2, 1) pixels on either
+    side, both lit and within `same_surface_bins` of the pixel's path, the dimmer of the two is a lower
+    bound of what the pixel would receive lit, E (the largest over pairs). The pixel is a partial shadow
+    when counts < ratio E by more than `partial_shadow_z` Poisson standard deviations of the difference
+    (variance: the pixel's gated photons, at least ratio E, + ratio^2 that of the neighbour; without
+    `poisson`, i.e. expected values rather than counts, any deficit counts). Shadow edges (one side dark)
+    and depth edges (one side another surface) never qualify; neither do pixels without lit neighbours.
+    """
+    ratio, z = settings.partial_shadow_ratio, settings.partial_shadow_z
+    tol = settings.same_surface_bins * bin_width_m
+    s = np.where(lit, counts, 0.0).astype(np.float64)
+    v = np.asarray(variance, np.float64)
+    p = np.where(lit, path, np.nan).astype(np.float64)
+    dark = ~np.asarray(lit, bool) & ~np.asarray(excluded, bool)
+    best, best_var = np.zeros_like(s), np.zeros_like(s)
+    with np.errstate(invalid="ignore"):
+        for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
+            for a, b in ((1, 1), (1, 2), (2, 1)):
+                s1, s2 = _shifted(s, -a * dy, -a * dx, 0.0), _shifted(s, b * dy, b * dx, 0.0)
+                p1, p2 = _shifted(p, -a * dy, -a * dx, np.nan), _shifted(p, b * dy, b * dx, np.nan)
+                ok1, ok2 = np.abs(p1 - p) <= tol, np.abs(p2 - p) <= tol
+                d1, d2 = _shifted(dark, -a * dy, -a * dx, False), _shifted(dark, b * dy, b * dx, False)
+                v1, v2 = _shifted(v, -a * dy, -a * dx, 0.0), _shifted(v, b * dy, b * dx, 0.0)
+                # a valley (lit same-surface pixels on both sides) or the rim of a shadow (one side dark)
+                e = np.where(ok1 & ok2, np.minimum(s1, s2), 0.0)
+                ev = np.where(s1 <= s2, v1, v2)
+                if settings.partial_shadow_edges and (a, b) == (1, 1):
+                    # the rim: the lit side's trend, extrapolated to the pixel, bounds it (shading that falls
+                    # steeply towards a depth or attached-shadow edge is not a cast shadow)
+                    s1b, s2b = _shifted(s, -2 * dy, -2 * dx, 0.0), _shifted(s, 2 * dy, 2 * dx, 0.0)
+                    p1b, p2b = _shifted(p, -2 * dy, -2 * dx, np.nan), _shifted(p, 2 * dy, 2 * dx, np.nan)
+                    t1 = ok1 & d2 & (np.abs(p1b - p) <= 2 * tol)
+                    t2 = ok2 & d1 & (np.abs(p2b - p) <= 2 * tol)
+                    e1 = np.where(t1, np.minimum(s1, 2 * s1 - s1b), 0.0)
+                    e2 = np.where(t2, np.minimum(s2, 2 * s2 - s2b), 0.0)
+                    ev = np.where(e1 > e, v1, ev)
+                    e = np.maximum(e, e1)
+                    ev = np.where(e2 > e, v2, ev)
+                    e = np.maximum(e, e2)
+                take = e > best
+                best, best_var = np.where(take, e, best), np.where(take, ev, best_var)
+    deficit = ratio * best - s
+    if not poisson:
+        return lit & (deficit > 0)
+    # Poisson variance of the pixel at the decision boundary (at least ratio E photons) and of E
+    var = np.maximum(v, ratio * best) + ratio * ratio * best_var
+    return lit & (deficit > 0) & (deficit > z * np.sqrt(var))
