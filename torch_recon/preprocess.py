@@ -299,7 +299,7 @@ def parallel_mask(dirs: np.ndarray, c, l, parallel_sin: float) -> np.ndarray:
     return (sin < parallel_sin) & ((dirs @ e) > 0)
 
 
-MIN_BACKGROUND_BINS = 16   # gates at least this wide give each pixel's background rate as their median bin
+MIN_BACKGROUND_BINS = 24   # gates at least this wide (3 blocks of 8 bins) give each pixel's background rate
 
 
 def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: PreprocessSettings, device="cpu"):
@@ -350,10 +350,13 @@ def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: Prepro
         gg = xp.shape[1] - 2 * hw
         total = xp[:, hw:hw + gg].sum(dim=1)
         # photons of the two-bounce return: the gated sum less the background, whose rate per bin is the
-        # median of a wide gate (a return fills a few bins); a narrow window holds no background (the
-        # simulator stores only non-zero bins when there is none). Poisson: variance = signal + background.
+        # median of a wide gate's 8-bin block means (a return fills one or two blocks; a median of a few
+        # blocks costs far less than one of all bins); a narrow window holds no background (the simulator
+        # stores only non-zero bins when there is none). Poisson: variance = signal + background.
         if gg >= MIN_BACKGROUND_BINS and settings.background != "median":
-            bg = xp[:, hw:hw + gg].median(dim=1).values * gg
+            nb = gg // 8
+            blocks = xp[:, hw:hw + 8 * nb].reshape(-1, nb, 8).mean(dim=2)
+            bg = blocks.median(dim=1).values * gg
         else:
             bg = torch.zeros_like(total)
         # correlation with a short pulse: a few shifted multiply-adds beat conv1d and FFT here

@@ -84,43 +84,38 @@ def partial_shadow_mask(counts, variance, path, lit, excluded, bin_width_m, sett
     (two-bounce shading varies slowly across 1-2 pixels), while a pixel on a plain surface lies between
     its neighbours. For each of 4 directions and neighbour pairs at (1, 1), (1, 2), (2, 1) pixels on either
     side, both lit and within `same_surface_bins` of the pixel's path, the dimmer of the two is a lower
-    bound of what the pixel would receive lit, E (the largest over pairs). The pixel is a partial shadow
-    when counts < ratio E by more than `partial_shadow_z` Poisson standard deviations of the difference
-    (variance: the pixel's gated photons, at least ratio E, + ratio^2 that of the neighbour; without
-    `poisson`, i.e. expected values rather than counts, any deficit counts). Shadow edges (one side dark)
-    and depth edges (one side another surface) never qualify; neither do pixels without lit neighbours.
+    bound of what the pixel would receive lit, E (the largest over pairs). At the rim of a shadow (one
+    side dark, `partial_shadow_edges`) the lit side's trend extrapolated to the pixel, min(s1, 2 s1 - s2),
+    is the bound: shading that falls steeply towards a depth or attached-shadow edge is no cast shadow.
+    The pixel is a partial shadow when counts < ratio E by more than `partial_shadow_z` Poisson standard
+    deviations of the difference (variance: the pixel's gated photons, at least ratio E, + ratio^2 that of
+    the neighbour; without `poisson`, i.e. expected values rather than counts, any deficit counts).
+    Depth edges (the other side another surface) and pixels without lit neighbours never qualify.
     """
     ratio, z = settings.partial_shadow_ratio, settings.partial_shadow_z
     tol = settings.same_surface_bins * bin_width_m
-    s = np.where(lit, counts, 0.0).astype(np.float64)
-    v = np.asarray(variance, np.float64)
-    p = np.where(lit, path, np.nan).astype(np.float64)
-    dark = ~np.asarray(lit, bool) & ~np.asarray(excluded, bool)
+    lit = np.asarray(lit, bool)
+    s = np.where(lit, counts, 0.0).astype(np.float32)
+    v = np.asarray(variance, np.float32)
+    p = np.where(lit, path, np.nan).astype(np.float32)
+    dark = ~lit & ~np.asarray(excluded, bool)
     best, best_var = np.zeros_like(s), np.zeros_like(s)
     with np.errstate(invalid="ignore"):
         for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
-            for a, b in ((1, 1), (1, 2), (2, 1)):
-                s1, s2 = _shifted(s, -a * dy, -a * dx, 0.0), _shifted(s, b * dy, b * dx, 0.0)
-                p1, p2 = _shifted(p, -a * dy, -a * dx, np.nan), _shifted(p, b * dy, b * dx, np.nan)
-                ok1, ok2 = np.abs(p1 - p) <= tol, np.abs(p2 - p) <= tol
-                d1, d2 = _shifted(dark, -a * dy, -a * dx, False), _shifted(dark, b * dy, b * dx, False)
-                v1, v2 = _shifted(v, -a * dy, -a * dx, 0.0), _shifted(v, b * dy, b * dx, 0.0)
-                # a valley (lit same-surface pixels on both sides) or the rim of a shadow (one side dark)
-                e = np.where(ok1 & ok2, np.minimum(s1, s2), 0.0)
-                ev = np.where(s1 <= s2, v1, v2)
-                if settings.partial_shadow_edges and (a, b) == (1, 1):
-                    # the rim: the lit side's trend, extrapolated to the pixel, bounds it (shading that falls
-                    # steeply towards a depth or attached-shadow edge is not a cast shadow)
-                    s1b, s2b = _shifted(s, -2 * dy, -2 * dx, 0.0), _shifted(s, 2 * dy, 2 * dx, 0.0)
-                    p1b, p2b = _shifted(p, -2 * dy, -2 * dx, np.nan), _shifted(p, 2 * dy, 2 * dx, np.nan)
-                    t1 = ok1 & d2 & (np.abs(p1b - p) <= 2 * tol)
-                    t2 = ok2 & d1 & (np.abs(p2b - p) <= 2 * tol)
-                    e1 = np.where(t1, np.minimum(s1, 2 * s1 - s1b), 0.0)
-                    e2 = np.where(t2, np.minimum(s2, 2 * s2 - s2b), 0.0)
-                    ev = np.where(e1 > e, v1, ev)
-                    e = np.maximum(e, e1)
-                    ev = np.where(e2 > e, v2, ev)
-                    e = np.maximum(e, e2)
+            # neighbours k steps along the direction: photons, same surface (1 and 2 tolerances), variance, dark
+            nb = {}
+            for k in (-2, -1, 1, 2):
+                dp = np.abs(_shifted(p, k * dy, k * dx, np.nan) - p)
+                nb[k] = (_shifted(s, k * dy, k * dx, 0.0), dp <= tol, _shifted(v, k * dy, k * dx, 0.0),
+                         _shifted(dark, k * dy, k * dx, False), dp <= 2 * tol)
+            cands = [(np.where(nb[-a][1] & nb[b][1], np.minimum(nb[-a][0], nb[b][0]), 0.0),
+                      np.where(nb[-a][0] <= nb[b][0], nb[-a][2], nb[b][2])) for a, b in ((1, 1), (1, 2), (2, 1))]
+            if settings.partial_shadow_edges:
+                for near, far, other in ((-1, -2, 1), (1, 2, -1)):
+                    sn, okn, vn, _, _ = nb[near]
+                    rim = okn & nb[other][3] & nb[far][4]
+                    cands.append((np.where(rim, np.minimum(sn, 2 * sn - nb[far][0]), 0.0), vn))
+            for e, ev in cands:
                 take = e > best
                 best, best_var = np.where(take, e, best), np.where(take, ev, best_var)
     deficit = ratio * best - s
