@@ -10,7 +10,9 @@ What preprocessing should have found, per spot and pixel (numpy + trimesh/Embree
 `measurement_accuracy` scores a Measurements against it: shadow precision / recall (truth: lit fraction
 below one half), recall on thin shadows (truth shadow pixels that a 3 x 3 opening of the truth mask
 removes: shadows at most about two pixels wide, as legs and poles cast), on shadows cast by labelled
-objects, the false-shadow rate on fully lit pixels, and the two-bounce path error on fully lit pixels.
+objects, the false-shadow rate on fully lit pixels, the share of pixels a labelled object shadows in part
+(lit fraction below 0.9) that are called lit (their lit segment carves through the object), and the
+two-bounce path error on fully lit pixels.
 """
 
 from __future__ import annotations
@@ -127,7 +129,7 @@ def measurement_accuracy(meas, truths: list[SpotTruth], bin_width_m: float) -> d
     """Pooled over spots and usable pixels (not excluded, a surface in the truth): see the module docstring."""
     tp = fp = fn = 0
     thin_tp = thin_n = obj_tp = obj_n = part_tp = part_n = 0
-    lit_n = lit_fa = n_usable = n_unlabelled = 0
+    lit_n = lit_fa = n_usable = n_unlabelled = occl_n = occl_lit = 0
     errs = []
     for sm, t in zip(meas.spots, truths):
         usable = ~np.asarray(sm.excluded, bool) & np.isfinite(t.lit_fraction)
@@ -148,6 +150,10 @@ def measurement_accuracy(meas, truths: list[SpotTruth], bin_width_m: float) -> d
         part = usable & (f > 0) & (f < 0.5)
         part_n += int(part.sum())
         part_tp += int((pred & part).sum())
+        # pixels a labelled object shadows in part (at least a tenth): called lit, their segment carves it
+        occl = usable & (f < 0.9) & (t.blocker_object >= 0)
+        occl_n += int(occl.sum())
+        occl_lit += int((occl & np.asarray(sm.signal, bool)).sum())
         full = usable & (f >= 1.0)
         lit_n += int(full.sum())
         lit_fa += int((pred & full).sum())
@@ -162,7 +168,7 @@ def measurement_accuracy(meas, truths: list[SpotTruth], bin_width_m: float) -> d
             "thin_shadow_recall": ratio(thin_tp, thin_n), "n_thin_shadow": thin_n,
             "object_shadow_recall": ratio(obj_tp, obj_n), "n_object_shadow": obj_n,
             "partial_shadow_recall": ratio(part_tp, part_n), "n_partial_shadow": part_n,
-            "false_shadow_rate": ratio(lit_fa, lit_n), "unlabelled_rate": ratio(n_unlabelled, n_usable), "n_truth_shadow": tp + fn,
+            "object_lit_rate": ratio(occl_lit, occl_n), "false_shadow_rate": ratio(lit_fa, lit_n), "unlabelled_rate": ratio(n_unlabelled, n_usable), "n_truth_shadow": tp + fn,
             "path_median_mm": float(np.median(np.abs(e)) * 1e3) if e.size else float("nan"),
             "path_p95_mm": float(np.percentile(np.abs(e), 95) * 1e3) if e.size else float("nan"),
             "path_bias_mm": float(np.median(e) * 1e3) if e.size else float("nan"),

@@ -61,6 +61,8 @@ class PreprocessSettings:
     min_first_bounce_snr: float = 5.0  # first-bounce peak must exceed this x the pixel's median (+ floor)
     partial_shadow_ratio: float = 0.5  # lit pixel with under this x the photons of same-surface lit pixels on
                                        # both sides (within 2 px): a thin shadow covers part of it (0: off)
+    partial_unlabel_ratio: float = 0.0  # under this (> partial_shadow_ratio) x the neighbours' photons: partly
+                                       # shadowed, left unlabelled (neither lit nor shadow); 0: off
     partial_shadow_z: float = 2.0      # ... and the deficit exceeds this many Poisson standard deviations
     partial_shadow_edges: bool = True  # also the rim of a shadow: dimmer than ratio x the lit side
     photon_statistics: str = "auto"    # 'poisson': values are photon counts; 'none': expected values (no
@@ -91,6 +93,8 @@ class PreprocessSettings:
             raise PreprocessError(f"photon_statistics must be 'auto', 'poisson' or 'none', got {self.photon_statistics!r}")
         if not 0.0 <= self.shadow_false_alarm < 1.0:
             raise PreprocessError(f"shadow_false_alarm must be in [0, 1), got {self.shadow_false_alarm}")
+        if not 0.0 <= self.partial_unlabel_ratio < 1.0:
+            raise PreprocessError(f"partial_unlabel_ratio must be in [0, 1), got {self.partial_unlabel_ratio}")
         if not (self.partial_shadow_z >= 0 and self.same_surface_bins > 0):
             raise PreprocessError("partial_shadow_z must be >= 0 and same_surface_bins > 0")
         if self.pulse_half_width_bins < 1:
@@ -407,8 +411,13 @@ def process_spot(tr: Transient, sensor, spot, settings: PreprocessSettings, devi
     unlabelled = unsupported_shadow_mask(mf, signal, excluded, settings.shadow_false_alarm) \
         if counting and settings.shadow_false_alarm > 0 else np.zeros_like(signal)
     if settings.partial_shadow_ratio > 0:
-        signal &= ~partial_shadow_mask(mf.counts, mf.variance, path, signal, excluded, sensor.bin_width_m, settings,
-                                      poisson=counting)
+        lit = signal
+        part = lambda ratio: partial_shadow_mask(mf.counts, mf.variance, path, lit, excluded, sensor.bin_width_m,  # noqa: E731
+                                                 settings, poisson=counting, ratio=ratio)
+        signal = lit & ~part(settings.partial_shadow_ratio)
+        if settings.partial_unlabel_ratio > settings.partial_shadow_ratio:
+            dim = signal & part(settings.partial_unlabel_ratio)     # partly shadowed: neither carve nor build
+            signal, unlabelled = signal & ~dim, unlabelled | dim
     path = np.where(signal, path, np.nan).astype(np.float32)
     ld = np.asarray(spot.laser_direction, np.float64)
     return SpotMeasurement(

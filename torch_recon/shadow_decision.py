@@ -76,7 +76,7 @@ def unsupported_shadow_mask(mf: FilterOutput, lit, excluded, alpha: float) -> np
 
 
 def partial_shadow_mask(counts, variance, path, lit, excluded, bin_width_m, settings,
-                        poisson: bool = True) -> np.ndarray:
+                        poisson: bool = True, ratio: float | None = None) -> np.ndarray:
     """Lit pixels that a thin shadow (a leg's, about one pixel wide) covers in part.
 
     The normalised matched filter is blind to them: its confidence does not depend on how many photons
@@ -92,8 +92,8 @@ def partial_shadow_mask(counts, variance, path, lit, excluded, bin_width_m, sett
     the neighbour; without `poisson`, i.e. expected values rather than counts, any deficit counts).
     Depth edges (the other side another surface) and pixels without lit neighbours never qualify.
     """
-    ratio, z = settings.partial_shadow_ratio, settings.partial_shadow_z
-    tol = settings.same_surface_bins * bin_width_m
+    ratio = settings.partial_shadow_ratio if ratio is None else ratio
+    z, tol = settings.partial_shadow_z, settings.same_surface_bins * bin_width_m
     lit = np.asarray(lit, bool)
     s = np.where(lit, counts, 0.0).astype(np.float32)
     v = np.asarray(variance, np.float32)
