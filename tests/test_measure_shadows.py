@@ -152,3 +152,16 @@ def test_new_settings_are_checked():
                 dict(photon_statistics="gauss"), dict(same_surface_bins=0.0)):
         with pytest.raises(PreprocessError):
             PreprocessSettings(**bad).validate()
+
+
+def test_partly_shadowed_band_for_the_unlabel_ratio():
+    """A column lit to 60 % at 2000 photons: not a shadow at ratio 0.5, found at 0.8 (partial_unlabel_ratio)."""
+    rng = np.random.default_rng(4)
+    lam, path = _lit_wall(rng, 2000.0)
+    lam[:, 31] *= 0.6
+    counts = rng.poisson(lam).astype(np.float64)
+    lit = counts > 0
+    args = (counts, counts, path, lit, np.zeros(lit.shape, bool), BW, PreprocessSettings())
+    assert not partial_shadow_mask(*args)[:, 31].any()
+    assert partial_shadow_mask(*args, ratio=0.8)[2:-2, 31].mean() >= 0.9
+    assert partial_shadow_mask(*args, ratio=0.8)[:, :29].mean() < 0.002
