@@ -335,7 +335,6 @@ def add_arguments(parser: argparse.ArgumentParser, cls, flags=(), sets: bool = T
         dest_keys[dest] = key
     parser._settings_flags = dest_keys
     if sets:
-
         listing = ", ".join(f"{s.key}={s.default}" for s in all_specs(cls))
         parser.epilog = "settings (--set KEY=VALUE, or --config FILE): " + listing
         parser.epilog = "\n".join(textwrap.wrap(parser.epilog, 100, subsequent_indent="  "))
