@@ -39,18 +39,16 @@ DIRECTIONS = ("from-platonerf", "to-platonerf", "from-platonerf-real")
 
 
 def register(sub) -> None:
-    from ..contract.settings import add_arguments
+    from . import add_stage
 
-    p = sub.add_parser("convert", help="import/export the authors' PlatoNeRF dataset layouts",
-                       description="from-platonerf / to-platonerf: their simulated layout (transforms_train.json "
-                                   "+ float16 .npy cubes); from-platonerf-real: their real-capture .mat files "
-                                   "(becomes a measurements-only dataset). Frames: docs/dataset_format.md.")
-    p.add_argument("direction", choices=DIRECTIONS)
-    p.add_argument("src", help="source directory")
-    p.add_argument("dst", help="destination directory")
-    add_arguments(p, ConvertSettings, ("bin_ps", "bin_m", "pulse_fwhm_ps", "window_bins", "ignore", "train_depth",
-                                       "float32", "spots"))
-    p.set_defaults(func=run)
+    add_stage(sub, "convert", run, ConvertSettings, ("bin_ps", "bin_m", "pulse_fwhm_ps", "window_bins", "ignore",
+                                                     "train_depth", "float32", "spots"),
+              help="import/export the authors' PlatoNeRF dataset layouts",
+              description="from-platonerf / to-platonerf: their simulated layout (transforms_train.json + float16 "
+                          ".npy cubes); from-platonerf-real: their real-capture .mat files (becomes a "
+                          "measurements-only dataset). Frames: docs/dataset_format.md.",
+              arguments=((("direction",), {"choices": DIRECTIONS}), (("src",), {"help": "source directory"}),
+                         (("dst",), {"help": "destination directory"})))
 
 
 #: top-level names of the PlatoNeRF layout this project writes

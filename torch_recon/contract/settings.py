@@ -99,7 +99,10 @@ def specs(cls, prefix: str = "") -> tuple:
     """Spec of every field of a settings dataclass (sections included, not expanded)."""
     hints = typing.get_type_hints(cls)
     meta = getattr(cls, "SETTINGS_META", {})
-    notes = _comments(cls)
+    notes = {}
+    for base in reversed(cls.__mro__):     # a field inherited from a settings base keeps its help
+        if dataclasses.is_dataclass(base):
+            notes.update(_comments(base))
     out = []
     for f in dataclasses.fields(cls):
         if not f.init:
