@@ -141,3 +141,14 @@ def test_help_comes_from_field_comments_only():
 
     helps = {s.key: s.help for s in settings.specs(WithMethod)}
     assert helps == {"width": "bin width (of optical path)", "count": "how many"}
+
+
+def test_inherited_fields_keep_their_help():
+    from torch_recon.commands.baseline import BaselineCommand
+    from torch_recon.commands.preprocess import PreprocessCommand
+
+    for cls in (PreprocessCommand, BaselineCommand):
+        helps = {s.key: s.help for s in settings.specs(cls)}
+        assert helps["device"].startswith("torch device") and "CPU threads" in helps["threads"], cls
+    with pytest.raises(SettingsError, match="setting threads: expected a value >= 1"):
+        settings.with_values(PreprocessCommand(), {"threads": "0"})
