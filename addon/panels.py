@@ -6,6 +6,7 @@ import bpy
 
 from . import jobs
 from .config_io import effective_bins, ps_to_m
+from torch_recon.contract.methods import METHODS
 
 
 class _LidarPanel:
@@ -24,8 +25,7 @@ def _job_row(layout, kind: str) -> bool:
     if job is None:
         return False
     row = layout.row(align=True)
-    row.progress(factor=job.progress or 0.0, type="BAR",
-                 text=f"{100 * (job.progress or 0):.0f}%  {(job.progress_line or job.last_line)[:40]}")
+    row.progress(factor=job.progress or 0.0, type="BAR", text=job.short_status()[:48])
     op = row.operator("platolidar.cancel_job", text="", icon="CANCEL")
     op.kind = kind
     return True
@@ -161,6 +161,14 @@ class PLATOLIDAR_PT_reconstruct(_LidarPanel, bpy.types.Panel):
         layout.prop(s, "recon_dataset_dir")
         layout.prop(s, "recon_out_dir")
         layout.prop(s, "recon_mode")
+        m = METHODS[s.recon_mode]
+        col = layout.column(align=True)
+        if m.command == "fit":
+            col.prop(s, "recon_budget", expand=True)
+            col.prop(s, "recon_steps" if s.recon_budget == "STEPS" else "recon_max_seconds")
+        if m.grid_setting:
+            col.prop(s, "recon_resolution")
+        col.prop(s, "recon_device")
         if not _job_row(layout, "reconstruction"):
             layout.operator("platolidar.reconstruct", icon="MESH_ICOSPHERE")
         layout.operator("platolidar.check_environment", icon="CHECKMARK")

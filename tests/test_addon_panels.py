@@ -32,8 +32,10 @@ def test_panels_draw_in_every_branch(room):
     room.cursor.location = (0.0, 0.5, 0.5)
     call(bpy.ops.platolidar.add_spot_cursor)
     seen_props, seen_ops = set(), set()
-    for range_mode, laser_mode, bounces, gate in (("BINS", "COLOCATED", 2, False), ("RANGE", "OBJECT", 3, True)):
+    for range_mode, laser_mode, bounces, gate, budget in (("BINS", "COLOCATED", 2, False, "STEPS"),
+                                                          ("RANGE", "OBJECT", 3, True, "TIME")):
         s.range_mode, s.laser_mode, s.bounces, s.time_gate = range_mode, laser_mode, bounces, gate
+        s.recon_budget = budget
         for panel in PANELS:
             log = draw_panel(panel)
             seen_props |= _props(log)
@@ -68,6 +70,35 @@ def test_running_job_shows_progress_and_cancel(blank):
     assert ("progress", 0.25, "25%  spot 4/16") in log
     assert ("op_prop", "platolidar.cancel_job", "kind") in log
     assert "platolidar.simulate" not in _ops(log)
+
+
+@pytest.mark.parametrize("mode,shown,hidden", [
+    ("fast", {"recon_budget", "recon_steps", "recon_resolution", "recon_device"}, {"recon_max_seconds"}),
+    ("platonerf", {"recon_budget", "recon_steps", "recon_resolution", "recon_device"}, set()),
+    ("bflidar", {"recon_resolution", "recon_device"}, {"recon_budget", "recon_steps", "recon_max_seconds"})])
+def test_reconstruct_panel_shows_the_modes_settings(blank, mode, shown, hidden):
+    from torch_recon.contract.methods import METHODS
+    s = blank.platolidar
+    assert {i.identifier for i in s.bl_rna.properties["recon_mode"].enum_items} == set(METHODS)
+    s.recon_mode = mode
+    props = _props(draw_panel(panels.PLATOLIDAR_PT_reconstruct))
+    assert shown <= props and not hidden & props, props
+    s.recon_budget = "TIME"
+    props = _props(draw_panel(panels.PLATOLIDAR_PT_reconstruct))
+    if mode != "bflidar":
+        assert "recon_max_seconds" in props and "recon_steps" not in props
+
+
+def test_running_reconstruction_shows_stage_progress_eta(blank):
+    job = jobs.Job("reconstruction", ["true"])
+    job.progress, job.stage, job.eta_s = 0.42, "fit fast", 74.0
+    jobs.set_active(job, "reconstruction")
+    try:
+        log = draw_panel(panels.PLATOLIDAR_PT_reconstruct)
+    finally:
+        jobs.set_active(None, "reconstruction")
+    assert ("progress", 0.42, "fit fast 42% ETA 1:14") in log
+    assert ("op_prop", "platolidar.cancel_job", "kind") in log
 
 
 def test_preferences_draw(blank):
