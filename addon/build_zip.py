@@ -47,6 +47,8 @@ ENTRY_SCRIPTS = ("pipeline/simulate.py",)
 #: package data shipped with the vendored code
 DATA_DIRS = ("torch_recon/contract/data",)
 SKIP_NAMES = {"build_zip.py", "blender_wheels.py", "__pycache__", VENDOR}
+#: the whole reconstructor for the external Python (the environment set-up installs its dependencies)
+RECONSTRUCTOR = "_reconstructor"
 WHEELS = "wheels"
 SKIP_SUFFIXES = (".pyc", ".pyo", ".blend1", ".zip")
 #: fixed timestamp: the same sources give the same zip bytes
@@ -162,16 +164,30 @@ def stage(dest: Path, platform: str | None = None, wheels=()) -> dict[str, Path]
     vendored, _ = vendored_files()
     for p in vendored:
         layout[f"{VENDOR}/{p.relative_to(REPO).as_posix()}"] = p
+    for p in sorted((REPO / "torch_recon").rglob("*")):
+        if p.is_file() and "__pycache__" not in p.parts and p.suffix not in SKIP_SUFFIXES:
+            layout[f"{RECONSTRUCTOR}/{p.relative_to(REPO).as_posix()}"] = p
     for w in wheels:
         layout[f"{WHEELS}/{w.name}"] = Path(w)
     for name, src in layout.items():
         (dest / name).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(src, dest / name)
+    (dest / RECONSTRUCTOR / "requirements.txt").write_text(reconstructor_requirements(), encoding="utf-8")
+    layout[f"{RECONSTRUCTOR}/requirements.txt"] = REPO / "pyproject.toml"
     text = manifest_text(platform, wheels)
     tomllib.loads(text)  # a broken insertion fails here, not in Blender
     (dest / MANIFEST).write_text(text, encoding="utf-8")
     layout[MANIFEST] = REPO / MANIFEST
     return layout
+
+
+def reconstructor_requirements() -> str:
+    """pyproject.toml's dependencies without torch (installed first, from the chosen build)."""
+    with open(REPO / "pyproject.toml", "rb") as f:
+        deps = tomllib.load(f)["project"]["dependencies"]
+    keep = [d for d in deps if not d.replace(" ", "").lower().startswith("torch")]
+    return "# the reconstructor's dependencies (from pyproject.toml; torch is installed before, its build chosen)\n" \
+        + "\n".join(keep) + "\n"
 
 
 def check_third_party():

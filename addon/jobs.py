@@ -80,6 +80,28 @@ def reconstruct_command(python: str, dataset: str, out_dir: str, mode: str, step
     return cmd
 
 
+def find_base_python() -> str:
+    """A Python to make the reconstruction environment with: python3.11 on PATH, else python3."""
+    import shutil
+    for name in ("python3.11", "python3", "python"):
+        found = shutil.which(name)
+        if found:
+            return found
+    return ""
+
+
+def setup_command(base_python: str, script: str, env_dir: str, torch_build: str, cuda: str, source_kind: str,
+                  source: str, pythonpath=()) -> list[str]:
+    """`BASE -u recon_setup.py --env DIR --torch cpu|cuda ...` (addon/recon_setup.py)."""
+    cmd = [str(base_python), "-u", str(script), "--env", str(env_dir), "--torch", torch_build]
+    if torch_build == "cuda":
+        cmd += ["--cuda", cuda]
+    cmd += ["--project" if source_kind == "project" else "--requirements", str(source)]
+    if pythonpath:
+        cmd += ["--pythonpath", os.pathsep.join(str(p) for p in pythonpath)]
+    return cmd
+
+
 def python_env(extra_paths=()) -> dict:
     """Environment for an external Python: our folders first on PYTHONPATH, Blender's own Python vars dropped."""
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONHOME", "PYTHONPATH")}

@@ -44,8 +44,10 @@ def test_panels_draw_in_every_branch(room):
     settings = {p for p in s.bl_rna.properties.keys() if p not in ("rna_type", "name", "spots",
                                                                    "active_spot_index")}
     assert settings - seen_props == set()
-    # (Cancel appears only while a job runs: test_running_job_shows_progress_and_cancel)
-    assert {c.bl_idname for c in __import__("addon").operators.classes} - seen_ops == {"platolidar.cancel_job"}
+    # (Cancel appears only while a job runs: test_running_job_shows_progress_and_cancel; the environment
+    # set-up is in the preferences: test_preferences_draw)
+    assert {c.bl_idname for c in __import__("addon").operators.classes} - seen_ops == {"platolidar.cancel_job",
+                                                                                 "platolidar.setup_environment"}
     assert "target" in seen_props  # the active spot's target is editable
 
 
@@ -103,10 +105,14 @@ def test_running_reconstruction_shows_stage_progress_eta(blank):
 
 def test_preferences_draw(blank):
     prefs = bpy.context.preferences.addons[ADDON].preferences
-    layout = RecordingLayout()
-    proxy = SimpleNamespace(layout=layout, bl_rna=prefs.bl_rna)
-    preferences.PLATOLIDAR_AP_preferences.draw(proxy, bpy.context)
-    assert _props(layout.log) == {"python_path", "blender_path", "project_dir", "output_dir"}
+    for torch_build, cuda_shown in (("cpu", False), ("cuda", True)):
+        prefs.env_torch = torch_build
+        layout = RecordingLayout()
+        proxy = SimpleNamespace(layout=layout, bl_rna=prefs.bl_rna, env_torch=prefs.env_torch)
+        preferences.PLATOLIDAR_AP_preferences.draw(proxy, bpy.context)
+        assert _props(layout.log) == {"python_path", "blender_path", "project_dir", "output_dir", "env_base_python",
+                                      "env_dir", "env_torch"} | ({"env_cuda"} if cuda_shown else set())
+        assert "platolidar.setup_environment" in _ops(layout.log)
 
 
 def test_the_stub_catches_typos(blank):

@@ -11,6 +11,7 @@ from .import_visible_depth import PLATOLIDAR_OT_import_visible_depth
 from .load_config import PLATOLIDAR_OT_load_config
 from .reconstruct import PLATOLIDAR_OT_reconstruct
 from .remove_spot import PLATOLIDAR_OT_remove_spot
+from .setup_environment import PLATOLIDAR_OT_setup_environment
 from .simulate import PLATOLIDAR_OT_simulate
 
 classes = (
@@ -24,6 +25,7 @@ classes = (
     PLATOLIDAR_OT_reconstruct,
     PLATOLIDAR_OT_cancel_job,
     PLATOLIDAR_OT_check_environment,
+    PLATOLIDAR_OT_setup_environment,
     PLATOLIDAR_OT_import_reconstruction,
     PLATOLIDAR_OT_import_visible_depth,
 )
