@@ -80,6 +80,10 @@ def reconstruct_command(python: str, dataset: str, out_dir: str, mode: str, step
     return cmd
 
 
+def evaluate_command(python: str, mesh: str, dataset: str, out_dir: str) -> list[str]:
+    return [str(python), "-m", "torch_recon", "evaluate", str(mesh), "--dataset", str(dataset), "--out", str(out_dir)]
+
+
 def find_base_python() -> str:
     """A Python to make the reconstruction environment with: python3.11 on PATH, else python3."""
     import shutil

@@ -172,6 +172,41 @@ class PLATOLIDAR_PT_reconstruct(_LidarPanel, bpy.types.Panel):
         if not _job_row(layout, "reconstruction"):
             layout.operator("platolidar.reconstruct", icon="MESH_ICOSPHERE")
         layout.operator("platolidar.check_environment", icon="CHECKMARK")
+        if not _job_row(layout, "evaluation"):
+            layout.operator("platolidar.evaluate", icon="GRAPH")
+        numbers = _result_numbers(s)
+        if numbers:
+            box = layout.box()
+            box.label(text="Last evaluation (test views / surface):")
+            for label, text in numbers:
+                row = box.row()
+                row.label(text=label)
+                row.label(text=text)
+            if s.result_summary:
+                box.operator("platolidar.open_summary", icon="URL")
+
+
+def _result_numbers(s) -> list:
+    import json
+    try:
+        return [tuple(x) for x in json.loads(s.result_numbers)] if s.result_numbers else []
+    except (ValueError, TypeError):
+        return []
+
+
+#: the error ramp's stops (addon/importing.py error_ramp: blue, green, yellow, red) as Blender's colour-tag icons
+LEGEND_ICONS = ("COLLECTION_COLOR_05", "COLLECTION_COLOR_04", "COLLECTION_COLOR_03", "COLLECTION_COLOR_01")
+
+
+def _error_legend(box, s):
+    """The colours of the imported reconstruction: distance to the ground truth at each ramp stop."""
+    box.label(text="Error colours (distance to ground truth):")
+    scale = s.result_error_scale_m
+    row = box.row(align=True)
+    for i, icon in enumerate(LEGEND_ICONS):
+        v = scale * i / (len(LEGEND_ICONS) - 1)
+        row.label(text=f"{'>= ' if i == len(LEGEND_ICONS) - 1 else ''}{100 * v:.1f} cm", icon=icon)
+    box.label(text=f"mean {100 * s.result_error_mean_m:.2f} cm, max {100 * s.result_error_max_m:.2f} cm")
 
 
 class PLATOLIDAR_PT_import(_LidarPanel, bpy.types.Panel):
@@ -184,6 +219,8 @@ class PLATOLIDAR_PT_import(_LidarPanel, bpy.types.Panel):
         layout.prop(s, "import_path")
         layout.prop(s, "import_color_error")
         layout.operator("platolidar.import_reconstruction", icon="IMPORT")
+        if s.import_color_error and s.result_error_scale_m > 0:
+            _error_legend(layout.box(), s)
         layout.separator()
         layout.prop(s, "measurements_path")
         layout.operator("platolidar.import_visible_depth", icon="OUTLINER_OB_POINTCLOUD")

@@ -145,6 +145,15 @@ class PLATOLIDAR_PG_settings(bpy.types.PropertyGroup):
                                 description="Reconstructed mesh (.ply or .obj, Blender world frame)")
     import_color_error: BoolProperty(name="Colour by Error", default=False,
                                      description="Colour vertices by distance to the dataset's ground-truth mesh")
+    # -- results (written by the operators, shown as text: not settings) ---------------------------
+    result_numbers: StringProperty(name="Evaluation Numbers", default="", options={"HIDDEN", "SKIP_SAVE"},
+                                   description="JSON [[label, text], ...] of the last evaluation's key numbers")
+    result_summary: StringProperty(name="Summary Page", default="", subtype="FILE_PATH", options={"HIDDEN"},
+                                   description="The last evaluation's summary.html")
+    result_error_scale_m: FloatProperty(name="Error Colour Scale", default=0.0, options={"HIDDEN"}, unit="LENGTH",
+                                        description="Distance to the ground truth shown red in the error colours")
+    result_error_mean_m: FloatProperty(name="Mean Error", default=0.0, options={"HIDDEN"}, unit="LENGTH")
+    result_error_max_m: FloatProperty(name="Max Error", default=0.0, options={"HIDDEN"}, unit="LENGTH")
     measurements_path: StringProperty(name="Measurements", default="", subtype="FILE_PATH", options=_BLEND_RELATIVE,
                                       description="Measurements .npz (torch_recon) with the visible depth")
 

@@ -211,6 +211,34 @@ def test_reconstruct_with_fake_python(room, tmp_path):
     assert s.import_path == str(tmp_path / "recon" / "mesh.ply")
 
 
+FAKE_EVAL_PYTHON = r'''
+import json, os, sys
+if sys.argv[1] == "-c":
+    print("OK torch 2.13.0 cpu"); sys.exit(0)
+assert sys.argv[1:4] == ["-m", "torch_recon", "evaluate"], sys.argv
+out = sys.argv[sys.argv.index("--out") + 1]
+os.makedirs(out, exist_ok=True)
+json.dump({"depth_l1_m": 0.0123, "depth_psnr_db": 21.5, "chamfer_m": 0.02, "fscore": 0.9}, open(os.path.join(out, "report.json"), "w"))
+open(os.path.join(out, "summary.html"), "w").write("<html></html>")
+'''
+
+
+def test_evaluate_shows_key_numbers_and_the_summary(room, tmp_path):
+    set_prefs(python_path=str(fake_executable(tmp_path / "python", FAKE_EVAL_PYTHON)))
+    s = room.platolidar
+    s.recon_dataset_dir = str(_fake_dataset(tmp_path))
+    expect_error(bpy.ops.platolidar.open_summary, "evaluate first")
+    s.import_path = str(tmp_path / "recon" / "mesh.ply")
+    expect_error(bpy.ops.platolidar.evaluate, "does not exist")
+    (tmp_path / "recon").mkdir()
+    (tmp_path / "recon" / "mesh.ply").write_text("ply")
+    res, err = call(bpy.ops.platolidar.evaluate)
+    assert err is None and res == {"FINISHED"}, err
+    assert json.loads(s.result_numbers) == [["Depth L1", "0.0123 m"], ["Depth PSNR", "21.50 dB"],
+                                            ["Chamfer", "0.0200 m"], ["F-score", "0.900"]]
+    assert s.result_summary == str(tmp_path / "recon" / "eval" / "summary.html")
+
+
 def test_reconstruct_bad_environments(room, tmp_path):
     s = room.platolidar
     s.recon_dataset_dir = str(_fake_dataset(tmp_path))

@@ -42,12 +42,13 @@ def test_panels_draw_in_every_branch(room):
             seen_ops |= _ops(log)
     # every setting and every operator of the add-on is reachable from the sidebar
     settings = {p for p in s.bl_rna.properties.keys() if p not in ("rna_type", "name", "spots",
-                                                                   "active_spot_index")}
+                                                                   "active_spot_index")
+                and not p.startswith("result_")}  # results are shown as text: test_results_are_shown
     assert settings - seen_props == set()
     # (Cancel appears only while a job runs: test_running_job_shows_progress_and_cancel; the environment
-    # set-up is in the preferences: test_preferences_draw)
-    assert {c.bl_idname for c in __import__("addon").operators.classes} - seen_ops == {"platolidar.cancel_job",
-                                                                                 "platolidar.setup_environment"}
+    # set-up is in the preferences: test_preferences_draw; Open Summary after an evaluation: test_results_are_shown)
+    assert {c.bl_idname for c in __import__("addon").operators.classes} - seen_ops == {
+        "platolidar.cancel_job", "platolidar.setup_environment", "platolidar.open_summary"}
     assert "target" in seen_props  # the active spot's target is editable
 
 
@@ -136,3 +137,21 @@ def test_the_stub_catches_typos(blank):
     for draw in (bad_prop, bad_operator, bad_operator_prop, bad_icon, bad_argument):
         with pytest.raises(AssertionError):
             draw(SimpleNamespace(layout=RecordingLayout()), bpy.context)
+
+
+def test_results_are_shown(blank, tmp_path):
+    """After an evaluation: the key numbers and Open Summary; after an error-coloured import: the legend."""
+    import json
+    s = blank.platolidar
+    log = draw_panel(panels.PLATOLIDAR_PT_reconstruct)
+    assert "platolidar.open_summary" not in _ops(log)
+    s.result_numbers = json.dumps([["Depth L1", "0.0123 m"], ["F-score", "0.912"]])
+    s.result_summary = str(tmp_path / "summary.html")
+    log = draw_panel(panels.PLATOLIDAR_PT_reconstruct)
+    labels = [e[1] for e in log if e[0] == "label"]
+    assert "Depth L1" in labels and "0.0123 m" in labels and "0.912" in labels
+    assert "platolidar.open_summary" in _ops(log)
+    s.import_color_error, s.result_error_scale_m, s.result_error_mean_m, s.result_error_max_m = True, 0.3, 0.01, 0.5
+    labels = [e[1] for e in draw_panel(panels.PLATOLIDAR_PT_import) if e[0] == "label"]
+    assert ["0.0 cm", "10.0 cm", "20.0 cm", ">= 30.0 cm"] == [t for t in labels if t.endswith(" cm") and "mean" not in t]
+    assert "mean 1.00 cm, max 50.00 cm" in labels

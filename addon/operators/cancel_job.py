@@ -15,11 +15,12 @@ class PLATOLIDAR_OT_cancel_job(bpy.types.Operator):
 
     kind: EnumProperty(name="Job", items=(("simulation", "Simulation", ""),
                                           ("reconstruction", "Reconstruction", ""),
+                                          ("evaluation", "Evaluation", ""),
                                           ("environment", "Environment set-up", "")))
 
     @classmethod
     def poll(cls, context):
-        if all(jobs.active(k) is None for k in ("simulation", "reconstruction", "environment")):
+        if all(jobs.active(k) is None for k in ("simulation", "reconstruction", "evaluation", "environment")):
             cls.poll_message_set("Nothing is running")
             return False
         return True
