@@ -87,6 +87,13 @@ bpy.context.preferences.addons[key].preferences.blender_path = {shim!r}
 s.output_dir = {out!r}
 r = bpy.ops.platolidar.simulate()   # execute: blocking
 print("SIMULATE", r)
+# no checkout: the reconstruction environment gets the zip's reconstructor and its requirements
+import importlib
+_project = importlib.import_module(key + "._project")
+kind, src = _project.reconstructor_source("")
+assert kind == "requirements" and src.endswith("_reconstructor/requirements.txt") and os.path.isfile(src), src
+assert _project.reconstruction_pythonpath("") == [str(_project.RECONSTRUCTOR_DIR)]
+print("RECONSTRUCTOR_OK")
 '''
 
 BLENDER_SHIM = '''
@@ -126,7 +133,7 @@ def test_installed_zip_simulates_without_the_checkout(platform_zip, tmp_path):
     r = subprocess.run([sys.executable, "-S", "-s", "-c", textwrap.dedent(code)], cwd=tmp_path, env=env,
                        capture_output=True, text=True, timeout=600)
     log = r.stdout[-3000:] + r.stderr[-3000:]
-    assert r.returncode == 0 and "SIMULATE {'FINISHED'}" in r.stdout, log
+    assert r.returncode == 0 and "SIMULATE {'FINISHED'}" in r.stdout and "RECONSTRUCTOR_OK" in r.stdout, log
     for dist in ("scipy", "trimesh", "openexr", "embreex", "tqdm"):
         assert f"'{dist}-" in r.stdout.lower(), (dist, log)
     ds = load_dataset(out)
