@@ -30,7 +30,9 @@ class SpotMeasurement:
     path_length: np.ndarray           # (H, W) float32 two-bounce optical path (m); NaN where no signal
     signal: np.ndarray                # (H, W) bool: a two-bounce peak was found (pixel sees l_k: lit)
     shadow_confidence: np.ndarray     # (H, W) float32 in [0, 1]: max of the normalised matched filter
-    shadow: np.ndarray                # (H, W) bool: confidence below threshold (x_p does not see l_k)
+    shadow: np.ndarray                # (H, W) bool: x_p does not see l_k (confidence below threshold, or
+                                      # partly shadowed: shadow_decision); a pixel neither signal nor shadow
+                                      # nor excluded is unlabelled (no evidence either way)
     excluded: np.ndarray              # (H, W) bool: pixels whose first and second bounce overlap
                                       # ('parallel' pixels along the laser ray) or are otherwise unusable
     first_bounce_pixel: tuple | None = None  # (row, col) seeing l_k, when found
