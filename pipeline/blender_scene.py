@@ -13,7 +13,7 @@ import numpy as np
 from mathutils import Matrix, Vector
 
 from torch_recon.contract.errors import PlatolidarError
-from pipeline.config import CONFIG_TEXT_NAME, SimulationConfig, SpotConfig
+from torch_recon.contract.simulation import CONFIG_TEXT_NAME, SimulationConfig, SpotConfig
 from torch_recon.contract.scene_objects import OBJECTS_COLLECTION
 from torch_recon.contract.scenes import AreaLight, BlenderPrimitive, ExampleScene, MeshPart
 
