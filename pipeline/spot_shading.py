@@ -73,7 +73,7 @@ class SceneRays:
         """True where the open segment a -> b (N, 3) is free of triangles."""
         a = np.asarray(a, np.float64)
         d = np.asarray(b, np.float64) - a
-        length = np.linalg.norm(d, axis=1)
+        length = np.sqrt(np.einsum("ij,ij->i", d, d))
         out = np.ones(len(a), bool)
         ok = length > 2 * RAY_EPS_M
         if not ok.any():
@@ -108,11 +108,11 @@ def two_bounce_radiance(rays: SceneRays, samples: ShadingSamples, first_bounce, 
     l = np.asarray(first_bounce, np.float64)
     n_l = np.asarray(normal_l, np.float32)
     v = l.astype(np.float32) - samples.x
-    r = np.linalg.norm(v, axis=1)
+    r = np.sqrt(np.einsum("ij,ij->i", v, v))
     safe = r > 1e-6
-    u = v / np.where(safe, r, np.float32(1.0))[:, None]
-    cos_x = np.einsum("ij,ij->i", samples.n, u)
-    cos_l = -(u @ n_l)
+    inv_r = np.float32(1.0) / np.where(safe, r, np.float32(1.0))
+    cos_x = np.einsum("ij,ij->i", samples.n, v) * inv_r       # no (N, 3) unit vectors: two dot products
+    cos_l = -(v @ n_l) * inv_r
     lit = safe & (cos_x > 0) & (cos_l > 0)
     idx = np.flatnonzero(lit)
     lit[idx] = rays.unoccluded(samples.x[idx] + RAY_EPS_M * samples.n[idx],
