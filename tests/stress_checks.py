@@ -142,7 +142,6 @@ def preprocess_checked(path, **settings):
         metrics.update(depth_error(meas, td))
     if ds.manifest.ground_truth.mesh_file:
         metrics["shadow_agreement"] = shadow_agreement(ds, meas)
-        metrics["shadow_agreement_reference"] = reference_shadow_agreement(ds, PreprocessSettings(**settings))
     return ds, meas, metrics
 
 
