@@ -18,6 +18,7 @@ import math
 import numpy as np
 import torch
 
+from ..contract.errors import UnconstrainedMeasurementsError
 from .data import RayData
 from .fields import DensityGrid, GridBox
 from .sampler import marching_intervals, ray_box
@@ -31,7 +32,8 @@ def scene_bbox(data: RayData, margin_m: float, quantile: float = 0.001):
     """
     pts = data.scene_points()
     if len(pts) < 2:
-        raise ValueError("measurements: no visible depth and no spots: cannot bound the scene")
+        raise UnconstrainedMeasurementsError("measurements: no visible depth and no spots: cannot bound the scene "
+                                             "(expected at least two measured points)")
     lo = np.quantile(pts, quantile, axis=0) - margin_m
     hi = np.quantile(pts, 1.0 - quantile, axis=0) + margin_m
     must = np.concatenate([pts[-len(data.spot_points):], data.sensor_origin.cpu().numpy()[None]], 0)
