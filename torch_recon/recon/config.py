@@ -53,6 +53,8 @@ class FastConfig:
     surface_half_width_voxels: float = 2.0  # the signed-distance ramp spans +- this around visible surfaces
     carve_core: float = 0.3           # a lit ray carves a voxel only through its central 0.6-voxel cube
     carve_spacing_voxels: float = 1.0  # carve with pixels about this many voxels apart at the far surfaces
+    explain_shadows: bool = True      # every shadowed segment keeps a blocker: the lit-carved voxel along it
+                                      # with the highest shadowed / lit crossing ratio is put back (thin parts)
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
     surface_margin_voxels: float = 1.0  # camera free space stops this far before the visible surface
     occupancy_threshold: float = 0.01  # cells whose neighbourhood has sigma * voxel below this are skipped
