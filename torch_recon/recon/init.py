@@ -179,11 +179,15 @@ def _segments(data: RayData, mask, off):
     return x[good], v[good] / length[good, None], torch.full_like(length[good], off), length[good] - off
 
 
-def explain_shadows(box: GridBox, label: torch.Tensor, lit_count, shadow_count, origins, dirs, near, far, step,
-                    chunk_samples: int = 1 << 22) -> int:
+#: evidence label of a carved voxel put back because a shadowed segment needs a blocker there
+RESTORED = 4
+
+
+def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count, origins, dirs, near, far, step,
+                    restorable=(3,), chunk_samples: int = 1 << 22) -> int:
     """Make every shadowed segment blocked (in place on the flat `label`): a shadowed segment whose voxels
-    were all carved free by lit rays gets back, as hidden (0), the lit-carved voxel along it with the most
-    shadowed and fewest lit crossings (shadow / (lit + 1)). Carving through whole voxels takes thin parts
+    were all carved free gets back the carved voxel along it with the most shadowed and fewest free
+    crossings (shadow / (lit + 1)). Carving through whole voxels takes thin parts
     (a chair leg about one voxel wide) with it wherever a lit ray grazes their voxel; the shadows the part
     casts cross it and put it back. Returns the number of voxels restored."""
     if origins.shape[0] == 0:
@@ -191,7 +195,9 @@ def explain_shadows(box: GridBox, label: torch.Tensor, lit_count, shadow_count, 
     nx, ny, nz = box.shape
     n_per = max(1, int(float((far - near).clamp(min=0).max()) / step) + 1)
     rays = max(1, chunk_samples // n_per)
-    score = shadow_count.float() / (lit_count.float() + 1.0)
+    score = shadow_count.float() / (free_count.float() + 1.0)
+    can = torch.zeros(8, dtype=torch.bool, device=label.device)
+    can[list(restorable)] = True
     picked = []
     for i in range(0, origins.shape[0], rays):
         t0, t1 = marching_intervals(near[i:i + rays], far[i:i + rays], step)
@@ -201,13 +207,13 @@ def explain_shadows(box: GridBox, label: torch.Tensor, lit_count, shadow_count, 
         flat = (idx[..., 0] * ny + idx[..., 1]) * nz + idx[..., 2]
         lab = label[flat]
         blocked = (keep & (lab != 2) & (lab != 3)).any(1)
-        cand = keep & (lab == 3) & ~blocked[:, None]
+        cand = keep & can[lab.long()] & ~blocked[:, None]
         sc = torch.where(cand, score[flat], torch.full_like(flat, -1, dtype=score.dtype))
         best, j = sc.max(1)
         ok = best >= 0
         picked.append(flat[ok].gather(1, j[ok, None]).squeeze(1))
     picked = torch.unique(torch.cat(picked))
-    label[picked] = 0
+    label[picked] = RESTORED
     return int(picked.numel())
 
 
@@ -225,8 +231,10 @@ def _pixel_stride(data: RayData, voxel: float, spacing_voxels: float = 1.0) -> i
 
 def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.0, carve_min_lit: int = 1,
                   secondary_offset_m: float = 0.0, step_voxels: float = 0.5, carve_core: float = 0.5,
-                  count_shadow: bool = False, carve_spacing_voxels: float = 1.0, explain_shadow_rays: bool = False):
-    """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden; and the count
+                  count_shadow: bool = False, carve_spacing_voxels: float = 1.0, explain_shadow_rays: bool = False,
+                  explain_camera_free: bool = False):
+    """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
+    blocker of a shadowed segment (with `explain_shadow_rays`); and the count
     of shadowed secondary segments through each voxel (with `count_shadow`)."""
     dev = data.pixel_dirs.device
     n = int(np.prod(box.shape))
@@ -265,7 +273,10 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     label[surface > 0] = 1
     if consistent:
         seg = _segments(data, data.shadowed & on_sub[data.pair_pixel], off)
-        explain_shadows(box, label, lit_count, shadow_count, *seg, step)
+        if explain_camera_free:     # a part thinner than a pixel: the pixel ray saw past it
+            explain_shadows(box, label, lit_count + cam_free, shadow_count, *seg, step, restorable=(2, 3))
+        else:
+            explain_shadows(box, label, lit_count, shadow_count, *seg, step)
     return label.reshape(box.shape), shadow_count.reshape(box.shape)
 
 
@@ -300,7 +311,7 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     """
     label, _ = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m,
                              cfg.step_voxels, cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
-                             explain_shadow_rays=cfg.explain_shadows)
+                             explain_shadow_rays=cfg.explain_shadows, explain_camera_free=cfg.explain_camera_free)
     free = (label == 2) | (label == 3)
     dev = data.pixel_dirs.device
     occupied = ~free if view is None else ~free & view
@@ -309,6 +320,6 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
         sd = surface_signed_distance(data, box, cfg.surface_half_width_voxels).to(dev)
         b = surface_offset(cfg.density_scale, box.voxel, cfg.surface_slope)
         ramp = (cfg.surface_slope * sd / box.voxel + b).clamp(cfg.raw_free, cfg.raw_occupied)
-        near = torch.isfinite(sd) & ((label != 3) | (sd <= 0.5 * box.voxel))
+        near = torch.isfinite(sd) & ((label != 3) | (sd <= 0.5 * box.voxel)) & (label != RESTORED)
         raw = torch.where(near, ramp, raw)
     return DensityGrid.from_xyz(box, raw.float(), cfg.density_scale), free
