@@ -36,7 +36,7 @@ AUTHORS_CURVE = {
 @dataclass
 class Settings:
     """Defaults (= full): the 2-core CPU run that finishes in about 25 minutes on the shared machine (fast mode
-    cut to 40 steps, platonerf to a 200 s budget: far from converged); on a GPU see GPU_COMMAND."""
+    cut to 30 steps, platonerf to a 150 s budget: far from converged); on a GPU see GPU_COMMAND."""
 
     example: str = "cave-chair"
     resolution: int = 64
@@ -44,9 +44,9 @@ class Settings:
     device: str = "cpu"                    # 'cpu', 'cuda' or 'auto' (the fit's device setting)
     threads: int = 2
     view_stride: int = 10                  # every n-th valid test view (both methods see the same ones)
-    fast_steps: int | None = 40            # None: the fast mode's default (200)
-    fast_eval_every_s: float = 100.0
-    platonerf_budget_s: float = 200.0      # training seconds (their full schedule is 200k steps)
+    fast_steps: int | None = 30            # None: the fast mode's default (200)
+    fast_eval_every_s: float = 120.0
+    platonerf_budget_s: float = 150.0      # training seconds (their full schedule is 200k steps)
     platonerf_eval_every_s: float = 1e9    # checkpoints (each meshes the field); the end is always scored
     platonerf_volume_resolution: int = 48  # the mesh of the MLP field: 48^3 queries per checkpoint
     platonerf_timing_steps: int = 1        # steps of each phase (warm-up, with shadow loss) timed in a subprocess
