@@ -162,6 +162,16 @@ def _run(cmd: list, log, env: dict, timeout: float | None) -> int:
         raise
 
 
+ATTEMPT_HEADER = "=== attempt "
+
+
+def _attempts(log_path: Path) -> int:
+    try:
+        return sum(1 for ln in log_path.read_text(errors="replace").splitlines() if ln.startswith(ATTEMPT_HEADER))
+    except OSError:
+        return 0
+
+
 def _last_line(log_path: Path) -> str:
     try:
         lines = [ln for ln in log_path.read_text(errors="replace").splitlines() if ln.strip()]
@@ -186,12 +196,12 @@ def run_task(task: dict, root: str, opts: dict, *dep_records: dict) -> dict:
     if missing:       # nothing recorded: the task runs when a later run has its inputs
         return {**base, "status": "skipped", "error": f"input task {missing[0][:12]} not done", "cached": False}
     folder.mkdir(parents=True, exist_ok=True)
-    attempt = int((rec or {}).get("attempt", 0)) + 1
+    attempt = _attempts(folder / LOG) + 1      # the log counts attempts a killed worker could not record
     env = _child_env(opts)
     t0, c0 = time.time(), os.times()
     code = 0
     with open(folder / LOG, "a", encoding="utf-8") as log:
-        log.write(f"\n=== attempt {attempt} on {socket.gethostname()} pid {os.getpid()} "
+        log.write(f"\n{ATTEMPT_HEADER}{attempt} on {socket.gethostname()} pid {os.getpid()} "
                   f"{time.strftime('%Y-%m-%d %H:%M:%S')} ===\n")
         log.flush()
         for cmd in stage_commands(task, folder, deps, opts):
