@@ -57,7 +57,7 @@ def _env():
     return {**os.environ, "PYTHONPATH": str(REPO)}
 
 
-def _run(plan, out, *extra, timeout=300):
+def _run(plan, out, *extra, timeout=800):
     return subprocess.run(_batch_cmd(plan, out, *extra), capture_output=True, text=True, env=_env(), cwd=REPO,
                           timeout=timeout)
 
@@ -136,12 +136,12 @@ def test_worker_killed_mid_task_loses_nothing(plan, clean_run):
     proc = subprocess.Popen(_batch_cmd(plan, out), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=_env(), cwd=REPO)
     try:
-        pid, folder = _worker_of_running_fit(out, time.time() + 240)
+        pid, folder = _worker_of_running_fit(out, time.time() + 600)
         assert pid != proc.pid
         time.sleep(1.0)                     # the fit subprocess is running
         assert not (folder / "task.json").exists()
         os.kill(pid, signal.SIGKILL)        # the worker process, mid-task
-        stdout, stderr = proc.communicate(timeout=300)
+        stdout, stderr = proc.communicate(timeout=800)
     finally:
         if proc.poll() is None:
             proc.kill()
