@@ -196,6 +196,8 @@ def run_task(task: dict, root: str, opts: dict, *dep_records: dict) -> dict:
     if missing:       # nothing recorded: the task runs when a later run has its inputs
         return {**base, "status": "skipped", "error": f"input task {missing[0][:12]} not done", "cached": False}
     folder.mkdir(parents=True, exist_ok=True)
+    for stale in [*folder.glob(".*.tmp"), *folder.glob(".scene.blend.*")]:   # half files of a killed attempt
+        stale.unlink(missing_ok=True)
     attempt = _attempts(folder / LOG) + 1      # the log counts attempts a killed worker could not record
     env = _child_env(opts)
     t0, c0 = time.time(), os.times()

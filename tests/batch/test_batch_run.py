@@ -156,6 +156,7 @@ def test_worker_killed_mid_task_loses_nothing(plan, clean_run):
     assert not list(folder.glob("**/*.tmp"))
 
 
+@pytest.mark.slow
 def test_failed_stage_recorded_and_retried(tmp_path):
     plan = tmp_path / "plan.toml"
     plan.write_text(PLAN.replace("count = 2", "count = 1").replace("spots = 3", "spots = 3\nbins = 5"))
