@@ -84,6 +84,14 @@ def run(s: Settings, ctx) -> list[dict]:
     return rows
 
 
+def plot(rows, settings, path):
+    """Scenes per hour for each worker count (bars)."""
+    from benchmarks.harness.report import plot_rows
+
+    return plot_rows(rows, path, title=f"batch: {settings.scenes} procedural scenes, {settings.resolution} px",
+                     y="scenes_per_hour", kind="bar")
+
+
 def readme(results: dict) -> str:
     from benchmarks.harness.report import markdown_table, provenance
 
@@ -97,4 +105,4 @@ def readme(results: dict) -> str:
 
 SUITE = Suite("batch", "procedural scenes simulated + fitted + evaluated per hour with 1 and 2 local Dask workers",
               quick=Settings(scenes=4, resolution=16, spots=3, test_views=2, fit_steps=10, fit_resolution=24),
-              full=Settings(), run=run, readme=readme)
+              full=Settings(), run=run, plot=plot, readme=readme)
