@@ -180,8 +180,28 @@ def _grid(sim: dict, source) -> list:
     keys = sorted(grid)
     points = []
     for values in itertools.product(*(grid[k] for k in keys)):
-        points.append(({**fixed, **dict(zip(keys, values))}, dict(zip(keys, values))))
+        point = dict(zip(keys, values))
+        settings = {**fixed, **point}
+        for k, v in settings.items():
+            _check_simulation_setting(k, v, f"simulate.grid.{k}" if k in point else f"simulate.{k}", source)
+        points.append((settings, point))
     return points
+
+
+def _check_simulation_setting(key, value, where: str, source) -> None:
+    """A SimulationConfig field (or simulate flag) with a value of its type, checked before anything runs."""
+    from torch_recon.contract.errors import SettingsError
+    from torch_recon.contract.settings import check_value, find_spec
+    from torch_recon.contract.simulation import SimulationConfig
+
+    if key in SIMULATE_FLAGS:
+        if isinstance(value, bool) or not isinstance(value, int) or value < (0 if key == "test_views" else 1):
+            raise PlanError(source, where, f"expected a positive integer, got {value!r}")
+        return
+    try:
+        check_value(find_spec(SimulationConfig, key), value)
+    except SettingsError as exc:
+        raise PlanError(source, where, exc.detail) from None
 
 
 def _methods(data, source) -> list:

@@ -95,6 +95,8 @@ def test_blend_key_follows_bytes_not_path(tmp_path):
     ("[scenes.procedural]\nsettings = { max_objects = 'x' }\n", ["scenes.procedural.settings.max_objects"]),
     ("[scenes]\nblend = ['missing.blend']\n", ["scenes.blend", "no such .blend"]),
     ("[scene]\n", ["scene", "unknown plan entry"]),
+    ("[scenes]\nexamples = ['cave-chair']\n[simulate]\nphotons = 3\n", ["simulate.photons", "unknown setting"]),
+    ("[scenes]\nexamples = ['cave-chair']\n[simulate.grid]\nbins = [10, 'x']\n", ["simulate.grid.bins", "integer"]),
     ("[scenes\n", ["file", "TOML"]),
 ])
 def test_bad_plans_name_the_field(tmp_path, text, words):
