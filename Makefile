@@ -64,8 +64,11 @@ bench: venv
 bench-quick: venv
 	$(PY) -m benchmarks all --quick
 
+# one extension zip per Blender platform with the simulator's wheels (cached in .cache/blender_wheels);
+# ADDON_PLATFORM=linux-x64 (or macos-arm64, macos-x64, windows-x64) builds just one
+ADDON_PLATFORM ?= all
 addon-zip: venv
-	$(PY) addon/build_zip.py --out dist
+	$(PY) addon/build_zip.py --out dist --platform $(ADDON_PLATFORM)
 
 clean:
 	rm -rf out dist .pytest_cache

@@ -18,6 +18,10 @@ from pathlib import Path
 
 ADDON_DIR = Path(__file__).resolve().parent
 VENDOR_DIR = ADDON_DIR / "_vendor"
+#: installed zip: the whole torch_recon package (torch parts included) for the external reconstruction
+#: Python, and requirements.txt, its dependencies (build_zip.py writes both); never imported by Blender
+RECONSTRUCTOR_DIR = ADDON_DIR / "_reconstructor"
+SETUP_SCRIPT = ADDON_DIR / "recon_setup.py"
 SIMULATE_SCRIPT = "pipeline/simulate.py"
 
 
@@ -67,8 +71,8 @@ def script_path(rel: str = SIMULATE_SCRIPT, project_dir: str = "") -> Path | Non
 def reconstruction_pythonpath(project_dir: str = "") -> list[str]:
     """Folders to prepend to PYTHONPATH for the external reconstruction Python.
 
-    Only full checkouts: the vendored subset has no reconstructor and would shadow an
-    installed torch_recon.
+    Full checkouts, else the reconstructor shipped in the zip: never the vendored subset, which
+    has no reconstructor and would shadow an installed torch_recon.
     """
     out = []
     if project_dir:
@@ -78,4 +82,19 @@ def reconstruction_pythonpath(project_dir: str = "") -> list[str]:
     root = repository_root()
     if root is not None and str(root) not in out:
         out.append(str(root))
+    if not out and (RECONSTRUCTOR_DIR / "torch_recon" / "__init__.py").is_file():
+        out.append(str(RECONSTRUCTOR_DIR))
     return out
+
+
+def reconstructor_source(project_dir: str = "") -> tuple[str, str]:
+    """What the environment set-up installs: ('project', checkout) or ('requirements', file)."""
+    for p in ([Path(os.path.expanduser(project_dir))] if project_dir else []) + \
+            ([repository_root()] if repository_root() else []):
+        if (p / "pyproject.toml").is_file() and (p / "torch_recon" / "__init__.py").is_file():
+            return "project", str(p)
+    req = RECONSTRUCTOR_DIR / "requirements.txt"
+    if req.is_file():
+        return "requirements", str(req)
+    raise FileNotFoundError("neither a project checkout (set Project Folder) nor the extension's "
+                            f"{req} says what to install")

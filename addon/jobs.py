@@ -16,6 +16,8 @@ import time
 from pathlib import Path
 
 _PERCENT = re.compile(r"(\d+(?:\.\d+)?)\s*%")
+# a tqdm bar: 'fit fast:  42%|####      | 84/200 [00:10<00:14, 8.1step/s]'
+_TQDM = re.compile(r"^(?:(?P<stage>[^:|]{1,60}):\s*)?\d+(?:\.\d+)?%\|.*?\[[\d:]+<(?P<eta>[\d:]+|\?)")
 _FRACTION = re.compile(r"(?<![\d.])(\d+)\s*/\s*(\d+)(?![\d.])")
 
 
@@ -30,6 +32,26 @@ def parse_progress(line: str) -> float | None:
     return None
 
 
+def parse_stage(line: str) -> tuple[str | None, float | None]:
+    """(stage name, seconds left) from a tqdm bar line; (None, None) for other lines."""
+    m = _TQDM.search(line.strip())
+    if not m:
+        return None, None
+    eta = None
+    if m.group("eta") != "?":
+        eta = 0.0
+        for part in m.group("eta").split(":"):
+            eta = eta * 60 + int(part)
+    return (m.group("stage") or "").strip() or None, eta
+
+
+def format_eta(seconds: float | None) -> str:
+    if seconds is None:
+        return ""
+    m, s = divmod(int(round(seconds)), 60)
+    return f"ETA {m // 60}:{m % 60:02d}:{s:02d}" if m >= 60 else f"ETA {m}:{s:02d}"
+
+
 def simulate_command(blender: str, blend_file: str, script: str, out_dir: str) -> list[str]:
     """Background Blender running the simulator on a saved copy of the scene (pipeline/launch.py)."""
     from pipeline.launch import simulate_command as command
@@ -37,8 +59,51 @@ def simulate_command(blender: str, blend_file: str, script: str, out_dir: str) -
     return command(["--out", out_dir], blend=blend_file, blender=blender, script=script)
 
 
-def reconstruct_command(python: str, dataset: str, out_dir: str, mode: str) -> list[str]:
-    return [str(python), "-m", "torch_recon", "fit", str(dataset), "--mode", mode, "--out", str(out_dir)]
+def reconstruct_command(python: str, dataset: str, out_dir: str, mode: str, steps: int = 0,
+                        max_seconds: float = 0.0, resolution: int = 0, device: str = "auto") -> list[str]:
+    """`python -m torch_recon <fit|baseline> DATASET --out OUT --set key=value ...` for a method of the
+    registry; 0 leaves the method's own default (steps, time budget, grid resolution)."""
+    from torch_recon.contract.methods import method
+
+    m = method(mode)
+    sets = {"mode": mode} if m.command == "fit" else {}
+    if m.command == "fit" and steps > 0:
+        sets["steps"] = int(steps)
+    if m.command == "fit" and max_seconds > 0:
+        sets["max_seconds"] = float(max_seconds)
+    if resolution > 0 and m.grid_setting:
+        sets[m.grid_setting] = int(resolution)
+    sets["device"] = device
+    cmd = [str(python), "-m", "torch_recon", m.command, str(dataset), "--out", str(out_dir)]
+    for key, value in sets.items():
+        cmd += ["--set", f"{key}={value}"]
+    return cmd
+
+
+def evaluate_command(python: str, mesh: str, dataset: str, out_dir: str) -> list[str]:
+    return [str(python), "-m", "torch_recon", "evaluate", str(mesh), "--dataset", str(dataset), "--out", str(out_dir)]
+
+
+def find_base_python() -> str:
+    """A Python to make the reconstruction environment with: python3.11 on PATH, else python3."""
+    import shutil
+    for name in ("python3.11", "python3", "python"):
+        found = shutil.which(name)
+        if found:
+            return found
+    return ""
+
+
+def setup_command(base_python: str, script: str, env_dir: str, torch_build: str, cuda: str, source_kind: str,
+                  source: str, pythonpath=()) -> list[str]:
+    """`BASE -u recon_setup.py --env DIR --torch cpu|cuda ...` (addon/recon_setup.py)."""
+    cmd = [str(base_python), "-u", str(script), "--env", str(env_dir), "--torch", torch_build]
+    if torch_build == "cuda":
+        cmd += ["--cuda", cuda]
+    cmd += ["--project" if source_kind == "project" else "--requirements", str(source)]
+    if pythonpath:
+        cmd += ["--pythonpath", os.pathsep.join(str(p) for p in pythonpath)]
+    return cmd
 
 
 def python_env(extra_paths=()) -> dict:
@@ -111,6 +176,8 @@ class Job:
         self.progress_line = ""
         self.lines: collections.deque = collections.deque(maxlen=log_lines)
         self.progress: float | None = None
+        self.stage: str | None = None        # the running tqdm bar's name ('preprocess', 'fit fast', ...)
+        self.eta_s: float | None = None      # its seconds left
         self.last_line = ""
         self.returncode: int | None = None
         self.cancelled = False
@@ -158,6 +225,9 @@ class Job:
                 frac = parse_progress(line)
                 if frac is not None:
                     self.progress, self.progress_line = frac, line
+                    stage, eta = parse_stage(line)
+                    if stage is not None or eta is not None:
+                        self.stage, self.eta_s = stage or self.stage, eta
 
     def poll(self) -> bool:
         """True once the process has exited and all its output has been read."""
@@ -211,10 +281,15 @@ class Job:
     def ok(self) -> bool:
         return self.returncode == 0 and not self.cancelled
 
+    def short_status(self) -> str:
+        """'fit fast 42% ETA 0:14' (a tqdm stage), else the percentage and the last progress line."""
+        pct = f"{100.0 * self.progress:.0f}%" if self.progress is not None else ""
+        if self.stage:
+            return " ".join(x for x in (self.stage, pct, format_eta(self.eta_s)) if x)
+        return f"{pct}  {(self.progress_line or self.last_line)[:60]}".strip()
+
     def status_text(self) -> str:
-        pct = f"{100.0 * self.progress:.0f}% " if self.progress is not None else ""
-        return f"{self.kind}: {pct}{(self.progress_line or self.last_line)[:120]}  " \
-               f"({self.elapsed:.0f} s, Esc to cancel)"
+        return f"{self.kind}: {self.short_status()}  ({self.elapsed:.0f} s, Esc to cancel)"
 
     def failure_summary(self, n: int = 6) -> str:
         """The lines most likely to say why it failed: errors first, else the tail."""

@@ -6,6 +6,7 @@ import bpy
 
 from . import jobs
 from .config_io import effective_bins, ps_to_m
+from torch_recon.contract.methods import METHODS
 
 
 class _LidarPanel:
@@ -24,8 +25,7 @@ def _job_row(layout, kind: str) -> bool:
     if job is None:
         return False
     row = layout.row(align=True)
-    row.progress(factor=job.progress or 0.0, type="BAR",
-                 text=f"{100 * (job.progress or 0):.0f}%  {(job.progress_line or job.last_line)[:40]}")
+    row.progress(factor=job.progress or 0.0, type="BAR", text=job.short_status()[:48])
     op = row.operator("platolidar.cancel_job", text="", icon="CANCEL")
     op.kind = kind
     return True
@@ -161,9 +161,52 @@ class PLATOLIDAR_PT_reconstruct(_LidarPanel, bpy.types.Panel):
         layout.prop(s, "recon_dataset_dir")
         layout.prop(s, "recon_out_dir")
         layout.prop(s, "recon_mode")
+        m = METHODS[s.recon_mode]
+        col = layout.column(align=True)
+        if m.command == "fit":
+            col.prop(s, "recon_budget", expand=True)
+            col.prop(s, "recon_steps" if s.recon_budget == "STEPS" else "recon_max_seconds")
+        if m.grid_setting:
+            col.prop(s, "recon_resolution")
+        col.prop(s, "recon_device")
         if not _job_row(layout, "reconstruction"):
             layout.operator("platolidar.reconstruct", icon="MESH_ICOSPHERE")
         layout.operator("platolidar.check_environment", icon="CHECKMARK")
+        if not _job_row(layout, "evaluation"):
+            layout.operator("platolidar.evaluate", icon="GRAPH")
+        numbers = _result_numbers(s)
+        if numbers:
+            box = layout.box()
+            box.label(text="Last evaluation (test views / surface):")
+            for label, text in numbers:
+                row = box.row()
+                row.label(text=label)
+                row.label(text=text)
+            if s.result_summary:
+                box.operator("platolidar.open_summary", icon="URL")
+
+
+def _result_numbers(s) -> list:
+    import json
+    try:
+        return [tuple(x) for x in json.loads(s.result_numbers)] if s.result_numbers else []
+    except (ValueError, TypeError):
+        return []
+
+
+#: the error ramp's stops (addon/importing.py error_ramp: blue, green, yellow, red) as Blender's colour-tag icons
+LEGEND_ICONS = ("COLLECTION_COLOR_05", "COLLECTION_COLOR_04", "COLLECTION_COLOR_03", "COLLECTION_COLOR_01")
+
+
+def _error_legend(box, s):
+    """The colours of the imported reconstruction: distance to the ground truth at each ramp stop."""
+    box.label(text="Error colours (distance to ground truth):")
+    scale = s.result_error_scale_m
+    row = box.row(align=True)
+    for i, icon in enumerate(LEGEND_ICONS):
+        v = scale * i / (len(LEGEND_ICONS) - 1)
+        row.label(text=f"{'>= ' if i == len(LEGEND_ICONS) - 1 else ''}{100 * v:.1f} cm", icon=icon)
+    box.label(text=f"mean {100 * s.result_error_mean_m:.2f} cm, max {100 * s.result_error_max_m:.2f} cm")
 
 
 class PLATOLIDAR_PT_import(_LidarPanel, bpy.types.Panel):
@@ -176,6 +219,8 @@ class PLATOLIDAR_PT_import(_LidarPanel, bpy.types.Panel):
         layout.prop(s, "import_path")
         layout.prop(s, "import_color_error")
         layout.operator("platolidar.import_reconstruction", icon="IMPORT")
+        if s.import_color_error and s.result_error_scale_m > 0:
+            _error_legend(layout.box(), s)
         layout.separator()
         layout.prop(s, "measurements_path")
         layout.operator("platolidar.import_visible_depth", icon="OUTLINER_OB_POINTCLOUD")

@@ -126,11 +126,34 @@ class PLATOLIDAR_PG_settings(bpy.types.PropertyGroup):
                                       description="Dataset to reconstruct (empty: the simulation's folder)")
     recon_out_dir: StringProperty(name="Output Folder", default="//lidar_recon", subtype="DIR_PATH", options=_BLEND_RELATIVE)
     recon_mode: EnumProperty(name="Mode", default=DEFAULT_FIT_METHOD,
-                             items=[(m.name, m.label, m.description) for m in METHODS.values() if m.command == "fit"])
+                             items=[(m.name, m.label, m.description) for m in METHODS.values()])
+    recon_budget: EnumProperty(name="Budget", default="STEPS", items=[
+        ("STEPS", "Steps", "Stop after a number of optimisation steps"),
+        ("TIME", "Time", "Stop after a wall-clock time budget")])
+    recon_steps: IntProperty(name="Steps", default=0, min=0, soft_max=100000,
+                             description="Optimisation steps (0: the mode's default)")
+    recon_max_seconds: FloatProperty(name="Time Budget (s)", default=0.0, min=0.0, soft_max=3600.0,
+                                     description="Wall-clock budget of the optimisation in seconds (0: none)")
+    recon_resolution: IntProperty(name="Grid Resolution", default=0, min=0, max=1024,
+                                  description="Voxels along the longest side of the reconstruction grid "
+                                              "(0: the mode's default)")
+    recon_device: EnumProperty(name="Device", default="auto", items=[
+        ("auto", "Auto", "CUDA when the reconstruction Python's torch sees a GPU, else CPU"),
+        ("cpu", "CPU", "Run on the CPU"),
+        ("cuda", "CUDA", "Run on the first CUDA GPU (fails when there is none)")])
     import_path: StringProperty(name="Mesh", default="", subtype="FILE_PATH", options=_BLEND_RELATIVE,
                                 description="Reconstructed mesh (.ply or .obj, Blender world frame)")
     import_color_error: BoolProperty(name="Colour by Error", default=False,
                                      description="Colour vertices by distance to the dataset's ground-truth mesh")
+    # -- results (written by the operators, shown as text: not settings) ---------------------------
+    result_numbers: StringProperty(name="Evaluation Numbers", default="", options={"HIDDEN", "SKIP_SAVE"},
+                                   description="JSON [[label, text], ...] of the last evaluation's key numbers")
+    result_summary: StringProperty(name="Summary Page", default="", subtype="FILE_PATH", options={"HIDDEN"},
+                                   description="The last evaluation's summary.html")
+    result_error_scale_m: FloatProperty(name="Error Colour Scale", default=0.0, options={"HIDDEN"}, unit="LENGTH",
+                                        description="Distance to the ground truth shown red in the error colours")
+    result_error_mean_m: FloatProperty(name="Mean Error", default=0.0, options={"HIDDEN"}, unit="LENGTH")
+    result_error_max_m: FloatProperty(name="Max Error", default=0.0, options={"HIDDEN"}, unit="LENGTH")
     measurements_path: StringProperty(name="Measurements", default="", subtype="FILE_PATH", options=_BLEND_RELATIVE,
                                       description="Measurements .npz (torch_recon) with the visible depth")
 

@@ -42,10 +42,11 @@ import os, sys
 if sys.argv[1] == "-c":
     print("OK torch 2.13.0 cpu"); sys.exit(0)
 assert sys.argv[1:4] == ["-m", "torch_recon", "fit"], sys.argv
-dataset, mode, out = sys.argv[4], sys.argv[sys.argv.index("--mode") + 1], sys.argv[sys.argv.index("--out") + 1]
+sets = dict(a.split("=", 1) for a in sys.argv[sys.argv.index("--set"):] if a != "--set")
+dataset, mode, out = sys.argv[4], sets["mode"], sys.argv[sys.argv.index("--out") + 1]
 assert os.path.isfile(os.path.join(dataset, "dataset.json"))
 for i in range(0, 101, 25):
-    print(f"fit {mode}: {i}%|####| loss=0.1", end="\r", flush=True)
+    print(f"fit {mode}: {i}%|####| {i}/100 [00:01<00:{100 - i:02d}, 9.9step/s]", end="\r", flush=True)
 os.makedirs(out, exist_ok=True)
 open(os.path.join(out, "mesh.ply"), "w").write("ply\n")
 '''
@@ -55,8 +56,55 @@ def test_command_lines():
     cmd = jobs.simulate_command("/opt/blender", "/tmp/a b.blend", "/x/pipeline/simulate.py", "/o")
     assert cmd == ["/opt/blender", "-b", "/tmp/a b.blend", "--python-exit-code", "1", "-P",
                    "/x/pipeline/simulate.py", "--", "--out", "/o"]
-    assert jobs.reconstruct_command("py", "/d", "/o", "fast") == ["py", "-m", "torch_recon", "fit", "/d",
-                                                                  "--mode", "fast", "--out", "/o"]
+    assert jobs.reconstruct_command("py", "/d", "/o", "fast") == ["py", "-m", "torch_recon", "fit", "/d", "--out",
+                                                                  "/o", "--set", "mode=fast", "--set", "device=auto"]
+
+
+@pytest.mark.parametrize("mode", ["fast", "platonerf", "bflidar"])
+def test_reconstruct_command_parses_with_the_real_cli(mode):
+    """The panel's settings reach the method through the one settings mechanism (--set)."""
+    import argparse
+
+    from torch_recon.contract.methods import METHODS
+    from torch_recon.contract.settings import from_args
+
+    cmd = jobs.reconstruct_command("py", "/d", "/o", mode, steps=321, max_seconds=12.5, resolution=96, device="cpu")
+    m = METHODS[mode]
+    assert cmd[3] == m.command
+    if m.command == "fit":
+        from torch_recon.commands.fit import register
+        from torch_recon.recon.config import FitConfig as cls
+    else:
+        from torch_recon.commands.baseline import BaselineCommand as cls
+        from torch_recon.commands.baseline import register
+    ap = argparse.ArgumentParser()
+    register(ap.add_subparsers())
+    cfg = from_args(cls, ap.parse_args(cmd[3:]))
+    section, _, field = m.grid_setting.partition(".")
+    assert getattr(getattr(cfg, section), field) == 96 and cfg.device == "cpu"
+    if m.command == "fit":
+        assert cfg.mode == mode and cfg.steps == 321 and cfg.max_seconds == 12.5
+    defaults = jobs.reconstruct_command("py", "/d", "/o", mode)
+    assert not any(k in " ".join(defaults) for k in ("steps=", "max_seconds=", m.grid_setting))
+
+
+@pytest.mark.parametrize("line,stage,eta", [
+    ("fit fast:  42%|####      | 84/200 [00:10<00:14, 8.1step/s]", "fit fast", 14),
+    ("UV atlas:   5%|5         | 1/20 [00:00<01:02:03, ?block/s]", "UV atlas", 3723),
+    (" 42%|####  | 84/200 [00:10<?, ?it/s]", None, None),
+    ("spot 3/16 rendered", None, None)])
+def test_parse_stage_and_eta(line, stage, eta):
+    assert jobs.parse_stage(line) == (stage, eta)
+
+
+def test_job_shows_stage_progress_and_eta():
+    code = ("import sys\nsys.stdout.write('preprocess: 100%|##| 4/4 [00:01<00:00]\\n')\n"
+            "sys.stdout.write('fit fast:  42%|####  | 84/200 [00:10<01:14, 8.1step/s]\\r')\n")
+    job = jobs.Job("reconstruction", [sys.executable, "-c", code]).start()
+    assert job.wait(timeout=30) == 0
+    assert job.stage == "fit fast" and job.progress == pytest.approx(0.42) and job.eta_s == 74
+    assert job.short_status() == "fit fast 42% ETA 1:14"
+    assert "fit fast 42% ETA 1:14" in job.status_text()
 
 
 @pytest.mark.parametrize("line,expected", [("spot 3/16 rendered", 3 / 16), (" 42%|####  | 84/200", 0.42),
@@ -161,6 +209,34 @@ def test_reconstruct_with_fake_python(room, tmp_path):
     res, err = call(bpy.ops.platolidar.reconstruct)
     assert err is None and res == {"FINISHED"}
     assert s.import_path == str(tmp_path / "recon" / "mesh.ply")
+
+
+FAKE_EVAL_PYTHON = r'''
+import json, os, sys
+if sys.argv[1] == "-c":
+    print("OK torch 2.13.0 cpu"); sys.exit(0)
+assert sys.argv[1:4] == ["-m", "torch_recon", "evaluate"], sys.argv
+out = sys.argv[sys.argv.index("--out") + 1]
+os.makedirs(out, exist_ok=True)
+json.dump({"depth_l1_m": 0.0123, "depth_psnr_db": 21.5, "chamfer_m": 0.02, "fscore": 0.9}, open(os.path.join(out, "report.json"), "w"))
+open(os.path.join(out, "summary.html"), "w").write("<html></html>")
+'''
+
+
+def test_evaluate_shows_key_numbers_and_the_summary(room, tmp_path):
+    set_prefs(python_path=str(fake_executable(tmp_path / "python", FAKE_EVAL_PYTHON)))
+    s = room.platolidar
+    s.recon_dataset_dir = str(_fake_dataset(tmp_path))
+    expect_error(bpy.ops.platolidar.open_summary, "evaluate first")
+    s.import_path = str(tmp_path / "recon" / "mesh.ply")
+    expect_error(bpy.ops.platolidar.evaluate, "does not exist")
+    (tmp_path / "recon").mkdir()
+    (tmp_path / "recon" / "mesh.ply").write_text("ply")
+    res, err = call(bpy.ops.platolidar.evaluate)
+    assert err is None and res == {"FINISHED"}, err
+    assert json.loads(s.result_numbers) == [["Depth L1", "0.0123 m"], ["Depth PSNR", "21.50 dB"],
+                                            ["Chamfer", "0.0200 m"], ["F-score", "0.900"]]
+    assert s.result_summary == str(tmp_path / "recon" / "eval" / "summary.html")
 
 
 def test_reconstruct_bad_environments(room, tmp_path):

@@ -10,6 +10,7 @@ import pytest
 from addon_fixtures import REPO
 
 sys.path.insert(0, str(REPO / "addon"))
+import blender_wheels  # noqa: E402
 import build_zip  # noqa: E402
 
 
@@ -34,10 +35,10 @@ def test_zip_holds_manifest_and_addon_only(built):
         assert "__pycache__" not in parts and not n.endswith((".pyc", ".pyo")), n
         assert not any(p.startswith(".") for p in parts), n
         assert "tests" not in parts and not parts[-1].startswith("conftest"), n   # contract/test_views.py is code
-        assert parts[-1] != "build_zip.py", n
-        assert parts[0] in ("_vendor",) or "/" not in n or parts[0] == "operators", n
+        assert parts[-1] not in ("build_zip.py", "blender_wheels.py"), n
+        assert parts[0] in ("_vendor", "_reconstructor", "operators") or "/" not in n, n
     addon_py = {p.relative_to(REPO / "addon").as_posix() for p in (REPO / "addon").rglob("*.py")
-                if "__pycache__" not in p.parts} - {"build_zip.py"}
+                if "__pycache__" not in p.parts} - {"build_zip.py", "blender_wheels.py"}
     assert addon_py <= set(names)
 
 
@@ -98,7 +99,92 @@ print("SELF_CONTAINED_OK")
 
 
 def test_cli_builds_into_a_folder(tmp_path):
-    r = subprocess.run([sys.executable, str(REPO / "addon" / "build_zip.py"), "--out", str(tmp_path / "d")],
-                       capture_output=True, text=True, timeout=120)
+    r = subprocess.run([sys.executable, str(REPO / "addon" / "build_zip.py"), "--out", str(tmp_path / "d"),
+                        "--no-wheels"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "d" / "platolidar-0.1.0.zip").is_file()
+
+
+# -- per-platform zips with wheels (fake wheels in a cache folder: no network here) ----------------
+
+FAKE_TAGS = {"linux-x64": "cp311-cp311-manylinux_2_28_x86_64", "macos-arm64": "cp311-cp311-macosx_14_0_arm64",
+             "macos-x64": "cp311-cp311-macosx_11_0_x86_64", "windows-x64": "cp311-cp311-win_amd64"}
+
+
+def _fake_wheel(path, dist, version):
+    """A minimal valid wheel (Blender's validator opens them)."""
+    with zipfile.ZipFile(path, "w") as z:
+        info = f"{dist}-{version}.dist-info"
+        z.writestr(f"{info}/METADATA", f"Metadata-Version: 2.1\nName: {dist}\nVersion: {version}\n")
+        z.writestr(f"{info}/WHEEL", "Wheel-Version: 1.0\nRoot-Is-Purelib: false\n")
+        z.writestr(f"{info}/RECORD", "")
+
+
+@pytest.fixture(scope="module")
+def fake_cache(tmp_path_factory):
+    cache = tmp_path_factory.mktemp("wheels")
+    for plat, tag in FAKE_TAGS.items():
+        d = cache / blender_wheels.wheel_platform(plat)
+        d.mkdir()
+        for req in blender_wheels.REQUIREMENTS.values():
+            dist = blender_wheels._requirement_name(req)
+            pure = dist in ("trimesh", "tqdm")
+            for version in ("1.0", "1.2"):  # two cached versions: the newer one is bundled
+                _fake_wheel(d / f"{dist}-{version}-{'py3-none-any' if pure else tag}.whl", dist, version)
+    return cache
+
+
+@pytest.fixture(scope="module")
+def platform_zips(fake_cache, tmp_path_factory):
+    return build_zip.build_platforms(tmp_path_factory.mktemp("pdist"), cache_dir=fake_cache, offline=True)
+
+
+def test_one_zip_per_platform_holds_that_platforms_wheels(platform_zips):
+    import tomllib
+    assert [p.name for p in platform_zips] == [f"platolidar-0.1.0-{blender_wheels.wheel_platform(p)}.zip"
+                                               for p in blender_wheels.PLATFORMS]
+    for plat, path in zip(blender_wheels.PLATFORMS, platform_zips):
+        with zipfile.ZipFile(path) as z:
+            names = z.namelist()
+            manifest = tomllib.loads(z.read("blender_manifest.toml").decode())
+            assert all(z.getinfo(n).compress_type == zipfile.ZIP_STORED for n in names if n.endswith(".whl"))
+        wheels = sorted(n for n in names if n.startswith("wheels/"))
+        assert len(wheels) == len(blender_wheels.REQUIREMENTS), wheels
+        assert all("-1.2-" in w for w in wheels), wheels
+        for w in wheels:
+            assert w.endswith("py3-none-any.whl") or w.endswith(FAKE_TAGS[plat].split("-")[-1] + ".whl"), (plat, w)
+        assert manifest["platforms"] == [plat]
+        assert sorted(manifest["wheels"]) == sorted(f"./{w}" for w in wheels)
+        assert manifest["permissions"]  # the insertion left the tables intact
+        assert "_vendor/pipeline/simulate.py" in names and "__init__.py" in names
+        assert not any(n.endswith(("build_zip.py", "blender_wheels.py")) for n in names)
+
+
+def test_blender_validates_a_platform_zip(platform_zips):
+    if build_zip.find_blender_ext() is None:
+        pytest.skip("no Blender extension tool (bpy module) here")
+    assert "Success" in build_zip.validate(platform_zips[0])
+
+
+def test_every_simulator_import_is_blenders_or_bundled():
+    _, third = build_zip.vendored_files()
+    assert {"scipy", "OpenEXR", "trimesh"} <= third
+    assert not third - blender_wheels.BLENDER_PROVIDES - set(blender_wheels.REQUIREMENTS), third
+    assert "numpy" not in " ".join(blender_wheels.REQUIREMENTS.values())  # Blender's numpy must stay first
+
+
+def test_offline_build_without_cached_wheels_is_one_clear_error(tmp_path):
+    r = subprocess.run([sys.executable, str(REPO / "addon" / "build_zip.py"), "--out", str(tmp_path / "d"),
+                        "--platform", "windows-x64", "--offline", "--wheel-cache", str(tmp_path / "empty")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert "windows-x64" in r.stderr and "--offline" in r.stderr, r.stderr
+    assert not (tmp_path / "d" / "platolidar-0.1.0-windows_x64.zip").exists()
+
+
+def test_pip_download_asks_for_cp311_binaries_of_the_platform():
+    cmd = blender_wheels.pip_download_command("macos-arm64", REPO / "x")
+    assert cmd[1:4] == ["-m", "pip", "download"]
+    assert "--only-binary=:all:" in cmd and "--no-deps" in cmd
+    assert cmd[cmd.index("--python-version") + 1] == "3.11"
+    assert cmd[cmd.index("--platform") + 1].endswith("arm64")

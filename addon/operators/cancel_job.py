@@ -14,11 +14,13 @@ class PLATOLIDAR_OT_cancel_job(bpy.types.Operator):
     bl_options = {"REGISTER"}
 
     kind: EnumProperty(name="Job", items=(("simulation", "Simulation", ""),
-                                          ("reconstruction", "Reconstruction", "")))
+                                          ("reconstruction", "Reconstruction", ""),
+                                          ("evaluation", "Evaluation", ""),
+                                          ("environment", "Environment set-up", "")))
 
     @classmethod
     def poll(cls, context):
-        if jobs.active("simulation") is None and jobs.active("reconstruction") is None:
+        if all(jobs.active(k) is None for k in ("simulation", "reconstruction", "evaluation", "environment")):
             cls.poll_message_set("Nothing is running")
             return False
         return True

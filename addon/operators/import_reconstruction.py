@@ -34,6 +34,8 @@ class PLATOLIDAR_OT_import_reconstruction(bpy.types.Operator):
                 bvh = importing.gt_bvh(gt)
                 stats = [importing.colour_by_error(o, bvh) for o in objs if o.type == "MESH"]
                 if stats:
+                    s.result_error_scale_m = stats[0]["scale_m"]
+                    s.result_error_mean_m, s.result_error_max_m = stats[0]["mean_m"], stats[0]["max_m"]
                     self.report({"INFO"}, "Error to ground truth: mean {:.4f} m, max {:.4f} m (red = {:.4f} m)"
                                 .format(stats[0]["mean_m"], stats[0]["max_m"], stats[0]["scale_m"]))
         except (UserError, importing.ImportProblem) as exc:

@@ -66,8 +66,10 @@ class PLATOLIDAR_OT_reconstruct(JobOperatorMixin, bpy.types.Operator):
             raise UserError(f"'{dataset}' is not a dataset (no dataset.json): simulate first or pick the folder")
         out_dir = resolve_path(s.recon_out_dir, "reconstruction output folder", context)
         self._out_dir = out_dir
-        return jobs.Job("reconstruction", jobs.reconstruct_command(python, dataset, out_dir, s.recon_mode),
-                        env=jobs.python_env(paths))
+        fit_budget = {"steps": s.recon_steps} if s.recon_budget == "STEPS" else {"max_seconds": s.recon_max_seconds}
+        cmd = jobs.reconstruct_command(python, dataset, out_dir, s.recon_mode, resolution=s.recon_resolution,
+                                       device=s.recon_device, **fit_budget)
+        return jobs.Job("reconstruction", cmd, env=jobs.python_env(paths))
 
     def finish(self, context, job):
         mesh = reported_mesh(self._out_dir) if os.path.isdir(self._out_dir) else None

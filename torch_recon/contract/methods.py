@@ -23,15 +23,16 @@ class Method:
     command: str        # the CLI subcommand that runs it: 'fit' or 'baseline'
     section: str        # its settings section (FitConfig.fast, FitConfig.platonerf, BaselineSettings.bflidar)
     model: str = ""     # 'module:callable(data, cfg, meas_meta, generator) -> FieldModel' for fit methods
+    grid_setting: str = ""  # the setting holding its grid resolution (voxels along the longest side)
 
 
 METHODS = {m.name: m for m in (
     Method("fast", "Fast", "Grid field fit (default, CPU friendly)", "fit", "fast",
-           "torch_recon.recon.models:build_fast"),
+           "torch_recon.recon.models:build_fast", "fast.resolution"),
     Method("platonerf", "PlatoNeRF", "The published NeRF method (slow reference)", "fit", "platonerf",
-           "torch_recon.recon.models:build_platonerf"),
+           "torch_recon.recon.models:build_platonerf", "platonerf.volume_resolution"),
     Method("bflidar", "BF Lidar", "Bounce Flash Lidar baseline: visible depth + shadow carving", "baseline",
-           "bflidar"),
+           "bflidar", grid_setting="bflidar.voxels"),
 )}
 FIT_METHODS = tuple(n for n, m in METHODS.items() if m.command == "fit")
 DEFAULT_FIT_METHOD = FIT_METHODS[0]
