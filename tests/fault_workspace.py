@@ -82,25 +82,12 @@ class Workspace:
             (shutil.copytree if src.is_dir() else shutil.copy2)(src, dst)
         return dst
 
-    @property
-    def ds(self) -> Path:
-        return self._copy(self.data.dataset, "ds")
-
-    @property
-    def ds_b(self) -> Path:
-        return self._copy(self.data.dataset_b, "ds_b")
-
-    @property
-    def ds_nogt(self) -> Path:
-        return self._copy(self.data.dataset_nogt, "ds_nogt")
-
-    @property
-    def npz(self) -> Path:
-        return self._copy(self.data.measurements, "m.npz")
-
-    @property
-    def fit(self) -> Path:
-        return self._copy(self.data.fit, "fit")
+    # fresh copies of the shared inputs (FaultData), made in this folder on first use
+    ds = property(lambda self: self._copy(self.data.dataset, "ds"))
+    ds_b = property(lambda self: self._copy(self.data.dataset_b, "ds_b"))
+    ds_nogt = property(lambda self: self._copy(self.data.dataset_nogt, "ds_nogt"))
+    npz = property(lambda self: self._copy(self.data.measurements, "m.npz"))
+    fit = property(lambda self: self._copy(self.data.fit, "fit"))
 
     @property
     def mesh(self) -> Path:

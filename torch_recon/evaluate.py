@@ -78,6 +78,11 @@ class EvalSettings:
             raise SettingsError("fscore_threshold_m", f"expected a length > 0 (m), got {self.fscore_threshold_m}")
         if self.n_surface_samples < 1:
             raise SettingsError("n_surface_samples", "expected an integer >= 1")
+        if self.object_metric_settings is not None:     # checked here, by key, not after the whole evaluation
+            from .contract.settings import from_dict
+            from .evaluation.objects import ObjectMetricSettings
+
+            from_dict(ObjectMetricSettings, self.object_metric_settings, prefix="object_metric_settings.")
 
 
 # ---------------------------------------------------------------- rendering

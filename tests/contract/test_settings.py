@@ -102,6 +102,53 @@ def test_every_stage_has_generated_options():
     from torch_recon.cli import build_parser
 
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
-    for stage in ("preprocess", "baseline", "fit", "evaluate"):
+    for stage in ("preprocess", "baseline", "fit", "evaluate", "convert"):
         opts = {o for a in sub.choices[stage]._actions for o in a.option_strings}
         assert {"--config", "--set"} <= opts, stage
+
+
+def test_convert_settings_from_flags_config_and_set(tmp_path):
+    from torch_recon.commands.convert import ConvertSettings
+
+    sub = next(a for a in __import__("torch_recon.cli").cli.build_parser()._actions
+               if isinstance(a, argparse._SubParsersAction))
+    p = sub.choices["convert"]
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("ignore = [0, 1]\nbin_ps = 64.0\n")
+    args = p.parse_args(["from-platonerf", "a", "b", "--config", str(cfg), "--ignore", "[2,3]",
+                         "--set", "window_bins=8", "--float32"])
+    assert settings.from_args(ConvertSettings, args) == ConvertSettings(bin_ps=64.0, ignore=(2, 3), window_bins=8,
+                                                                        float32=True)
+    for argv, message in ((["--bin-m", "0"], "setting bin_m: expected a number > 0"),
+                          (["--spots", "0"], "setting spots: expected a value >= 1"),
+                          (["--ignore", "1,-2"], "setting ignore: expected a value >= 0")):
+        with pytest.raises(SettingsError, match=message):
+            settings.from_args(ConvertSettings, p.parse_args(["to-platonerf", "a", "b", *argv]))
+
+
+def test_help_comes_from_field_comments_only():
+    """A field's help is its trailing comment and the comment lines aligned under it, never a comment
+    inside a method that follows the fields."""
+    @dataclass
+    class WithMethod:
+        width: float = 1.0            # bin width
+                                      # (of optical path)
+        count: int = 3                # how many
+
+        def validate(self):
+            # not help
+            return None
+
+    helps = {s.key: s.help for s in settings.specs(WithMethod)}
+    assert helps == {"width": "bin width (of optical path)", "count": "how many"}
+
+
+def test_inherited_fields_keep_their_help():
+    from torch_recon.commands.baseline import BaselineCommand
+    from torch_recon.commands.preprocess import PreprocessCommand
+
+    for cls in (PreprocessCommand, BaselineCommand):
+        helps = {s.key: s.help for s in settings.specs(cls)}
+        assert helps["device"].startswith("torch device") and "CPU threads" in helps["threads"], cls
+    with pytest.raises(SettingsError, match="setting threads: expected a value >= 1"):
+        settings.with_values(PreprocessCommand(), {"threads": "0"})

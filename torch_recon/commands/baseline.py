@@ -6,41 +6,35 @@ from dataclasses import dataclass, field
 
 from ..bflidar import BFLidarSettings
 from ..preprocess import PreprocessSettings
+from . import DEVICE_FLAGS, DeviceSettings, add_stage
 
 
 @dataclass
-class BaselineCommand:
+class BaselineCommand(DeviceSettings):
     """Settings of `baseline`: preprocessing, then BF Lidar carving."""
 
     preprocess: PreprocessSettings = field(default_factory=PreprocessSettings)
     bflidar: BFLidarSettings = field(default_factory=BFLidarSettings)
-    device: str = "cpu"               # torch device: auto, cpu, cuda, cuda:N
-    threads: int | None = None        # CPU threads for torch (None: torch's choice)
     grid_search: bool = False         # pick shadow/occupancy thresholds by depth L1 on the test views (needs GT)
     evaluate: bool = False            # also write report.json for the mesh
 
-    SETTINGS_META = {"threads": {"range": (1, None)}}
     GRID_SHADOW_THRESHOLDS = (0.05, 0.15, 0.25, 0.5)
-
-    def validate(self):
-        from ..contract.settings import check_device_name
-
-        check_device_name(self.device)
 
 
 def register(sub) -> None:
-    from ..contract.settings import add_arguments
-    from .preprocess import DEVICE_FLAGS, PREPROCESS_FLAGS
+    from .preprocess import PREPROCESS_FLAGS
 
-    p = sub.add_parser("baseline", help="Bounce Flash Lidar baseline -> mesh",
-                       description="Preprocess the dataset (or reuse --measurements), carve, mesh; optionally "
-                                   "grid-search the thresholds on the dataset's test views as the paper did.")
-    p.add_argument("dataset", help="dataset directory")
-    p.add_argument("--out", required=True, help="output directory (mesh.glb/.ply/.obj, mesh.mesh.json)")
-    p.add_argument("--measurements", default=None, help="reuse a preprocess .npz instead of preprocessing")
-    add_arguments(p, BaselineCommand, ("bflidar.voxels", "bflidar.occupancy_threshold", "grid_search", "evaluate")
-                  + PREPROCESS_FLAGS + DEVICE_FLAGS)
-    p.set_defaults(func=run)
+    add_stage(sub, "baseline", run, BaselineCommand,
+              ("bflidar.voxels", "bflidar.occupancy_threshold", "grid_search", "evaluate") + PREPROCESS_FLAGS
+              + DEVICE_FLAGS,
+              help="Bounce Flash Lidar baseline -> mesh",
+              description="Preprocess the dataset (or reuse --measurements), carve, mesh; optionally grid-search "
+                          "the thresholds on the dataset's test views as the paper did.",
+              arguments=((("dataset",), {"help": "dataset directory"}),
+                         (("--out",), {"required": True, "help": "output directory (mesh.glb/.ply/.obj, "
+                                                                 "mesh.mesh.json)"}),
+                         (("--measurements",), {"default": None,
+                                                "help": "reuse a preprocess .npz instead of preprocessing"})))
 
 
 #: top-level names baselines of earlier versions wrote (they kept no record of them)

@@ -2,35 +2,53 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 
-def _indices(text: str) -> list[int]:
-    try:
-        return [int(v) for v in text.replace("[", "").replace("]", "").split(",") if v.strip()]
-    except ValueError:
-        raise ValueError(f"--ignore: expected frame indices like 0,1,2,3,10,13,20,22, got {text!r}") from None
+from ..contract.dataset.platonerf_layout import PAPER_BIN_WIDTH_M, PAPER_BIN_WIDTH_PS
+
+
+@dataclass
+class ConvertSettings:
+    """Settings of `convert` (each direction reads the ones it needs)."""
+
+    bin_ps: float = PAPER_BIN_WIDTH_PS        # from-platonerf: bin width in ps (their cubes do not record it)
+    bin_m: float = PAPER_BIN_WIDTH_M          # from-platonerf: bin width in metres of optical path (their TIME_RES_M)
+    pulse_fwhm_ps: float = PAPER_BIN_WIDTH_PS  # from-platonerf: laser pulse width (FWHM)
+    window_bins: int | None = None            # from-platonerf: store a window of this many bins per pixel
+                                              # instead of the dense cube
+    ignore: tuple[int, ...] | None = None     # from-platonerf: frames imported as disabled spots, e.g.
+                                              # 0,1,2,3,10,13,20,22 (their chair config); default: the
+                                              # 'ignore' list in transforms_train.json, else none
+    train_depth: str | None = None            # from-platonerf: a .npy range image of the train view (ground truth)
+    float32: bool = False                     # to-platonerf: float32 cubes (lossless) instead of their float16
+    spots: int = 16                           # from-platonerf-real: illumination spots
+
+    SETTINGS_META = {"bin_ps": {"unit": "ps"}, "bin_m": {"unit": "m"}, "pulse_fwhm_ps": {"unit": "ps"},
+                     "window_bins": {"range": (1, None)}, "ignore": {"range": (0, None)},
+                     "spots": {"range": (1, None)}}
+
+    def validate(self):
+        from ..contract.errors import SettingsError
+
+        for key in ("bin_ps", "bin_m", "pulse_fwhm_ps"):    # widths must be > 0 (a range is inclusive)
+            if not getattr(self, key) > 0:
+                raise SettingsError(key, f"expected a number > 0, got {getattr(self, key)}")
+
+
+DIRECTIONS = ("from-platonerf", "to-platonerf", "from-platonerf-real")
 
 
 def register(sub) -> None:
-    p = sub.add_parser("convert", help="import/export the authors' PlatoNeRF dataset layouts",
-                       description="from-platonerf / to-platonerf: their simulated layout (transforms_train.json "
-                                   "+ float16 .npy cubes); from-platonerf-real: their real-capture .mat files "
-                                   "(becomes a measurements-only dataset). Frames: docs/dataset_format.md.")
-    p.add_argument("direction", choices=("from-platonerf", "to-platonerf", "from-platonerf-real"))
-    p.add_argument("src", help="source directory")
-    p.add_argument("dst", help="destination directory")
-    p.add_argument("--bin-ps", type=float, default=128.0, help="bin width (ps) when importing (default: paper's 128)")
-    p.add_argument("--bin-m", type=float, default=0.0384, help="bin width in metres of optical path (default 0.0384)")
-    p.add_argument("--pulse-fwhm-ps", type=float, default=128.0)
-    p.add_argument("--window-bins", type=int, default=None,
-                   help="store a window of this many bins per pixel instead of the dense cube")
-    p.add_argument("--ignore", type=_indices, default=None,
-                   help="frames to import as disabled spots, e.g. 0,1,2,3,10,13,20,22 (their chair config); "
-                        "default: the 'ignore' list in transforms_train.json, else none")
-    p.add_argument("--train-depth", help="a .npy range image of the train view to import as ground truth")
-    p.add_argument("--float32", action="store_true",
-                   help="to-platonerf: write float32 cubes (lossless) instead of their float16")
-    p.add_argument("--spots", type=int, default=16, help="from-platonerf-real: illumination spots (default 16)")
-    p.set_defaults(func=run)
+    from . import add_stage
+
+    add_stage(sub, "convert", run, ConvertSettings, ("bin_ps", "bin_m", "pulse_fwhm_ps", "window_bins", "ignore",
+                                                     "train_depth", "float32", "spots"),
+              help="import/export the authors' PlatoNeRF dataset layouts",
+              description="from-platonerf / to-platonerf: their simulated layout (transforms_train.json + float16 "
+                          ".npy cubes); from-platonerf-real: their real-capture .mat files (becomes a "
+                          "measurements-only dataset). Frames: docs/dataset_format.md.",
+              arguments=((("direction",), {"choices": DIRECTIONS}), (("src",), {"help": "source directory"}),
+                         (("dst",), {"help": "destination directory"})))
 
 
 #: top-level names of the PlatoNeRF layout this project writes
@@ -42,34 +60,28 @@ def run(args) -> int:
     from ..contract.dataset import load_dataset
     from ..contract.dataset.platonerf_layout import export_platonerf, import_platonerf
     from ..contract.dataset.staging import StagedDir
-    from ..contract.errors import SettingsError
+    from ..contract.settings import from_args
 
-    for key, v in (("bin-ps", args.bin_ps), ("bin-m", args.bin_m), ("pulse-fwhm-ps", args.pulse_fwhm_ps)):
-        if not v > 0:
-            raise SettingsError(key, f"expected a number > 0, got {v}")
-    if args.window_bins is not None and args.window_bins < 1:
-        raise SettingsError("window-bins", f"expected at least 1, got {args.window_bins}")
-    if args.spots < 1:
-        raise SettingsError("spots", f"expected at least 1, got {args.spots}")
+    s = from_args(ConvertSettings, args)
     if args.direction == "from-platonerf":
-        ds = import_platonerf(args.src, args.dst, bin_width_ps=args.bin_ps, bin_width_m=args.bin_m,
-                              pulse_fwhm_ps=args.pulse_fwhm_ps, window_bins=args.window_bins, ignore=args.ignore,
-                              train_depth=args.train_depth)
+        ds = import_platonerf(args.src, args.dst, bin_width_ps=s.bin_ps, bin_width_m=s.bin_m,
+                              pulse_fwhm_ps=s.pulse_fwhm_ps, window_bins=s.window_bins,
+                              ignore=None if s.ignore is None else list(s.ignore), train_depth=s.train_depth)
         gt = ds.manifest.ground_truth
         print(f"imported {len(ds.manifest.spots)} spots ({len(ds.manifest.enabled_spots)} enabled)"
               + (f", {len(gt.test_views.camera_to_world)} test views" if gt.test_views else "") + f" -> {ds.root}")
     elif args.direction == "from-platonerf-real":
         from ..contract.dataset.platonerf_real import import_platonerf_real
 
-        ds = import_platonerf_real(args.src, args.dst, spots=args.spots)
-        s = ds.sensor
-        print(f"imported a real capture: {s.width}x{s.height} pixels, {len(ds.manifest.spots)} spots "
+        ds = import_platonerf_real(args.src, args.dst, spots=s.spots)
+        sensor = ds.sensor
+        print(f"imported a real capture: {sensor.width}x{sensor.height} pixels, {len(ds.manifest.spots)} spots "
               f"(measurements dataset) -> {ds.root}")
     else:
         ds = load_dataset(args.src)
         with StagedDir(args.dst, "PlatoNeRF layout", legacy=PLATONERF_ENTRIES,
                        marker="transforms_train.json") as st:
-            export_platonerf(ds, st.path, sample_type="float32" if args.float32 else "float16")  # whole, then swapped in
+            export_platonerf(ds, st.path, sample_type="float32" if s.float32 else "float16")  # whole, then swapped in
             out = st.commit()
         print(f"exported -> {out} (their loader: load_tof_data('{out}', ignore) with ignore from "
               f"{out / 'platonerf_config.txt'})")

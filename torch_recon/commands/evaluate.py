@@ -8,19 +8,19 @@ EVAL_FLAGS = ("fscore_threshold_m", "n_surface_samples", "miss_depth", "cull_bac
 
 
 def register(sub) -> None:
-    from ..contract.settings import add_arguments
     from ..evaluate import EvalSettings
+    from . import add_stage
 
-    p = sub.add_parser("evaluate", help="depth L1/PSNR on test views, Chamfer, F-score -> report.json",
-                       description="Renders the mesh (Embree) from every ground-truth test view and compares "
-                                   "ranges; samples both surfaces for Chamfer and F-score.")
-    p.add_argument("reconstruction", help="mesh file (.ply/.glb/.obj as written by this project, world frame)")
-    p.add_argument("--dataset", required=True, help="dataset directory with ground truth")
-    p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--two-sided", action="store_true",
-                   help="count hits on back faces too (same as --no-cull-back-faces)")
-    add_arguments(p, EvalSettings, EVAL_FLAGS)
-    p.set_defaults(func=run)
+    add_stage(sub, "evaluate", run, EvalSettings, EVAL_FLAGS,
+              help="depth L1/PSNR on test views, Chamfer, F-score -> report.json",
+              description="Renders the mesh (Embree) from every ground-truth test view and compares ranges; "
+                          "samples both surfaces for Chamfer and F-score.",
+              arguments=((("reconstruction",), {"help": "mesh file (.ply/.glb/.obj as written by this project, "
+                                                        "world frame)"}),
+                         (("--dataset",), {"required": True, "help": "dataset directory with ground truth"}),
+                         (("--out",), {"required": True, "help": "output directory"}),
+                         (("--two-sided",), {"action": "store_true", "help": "count hits on back faces too "
+                                                                             "(same as --no-cull-back-faces)"})))
 
 
 #: top-level names evaluations of earlier versions wrote (they kept no record of them)

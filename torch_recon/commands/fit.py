@@ -7,21 +7,24 @@ FIT_FLAGS = ("mode", "steps", "max_seconds", "seed", "device", "threads", "resum
 
 
 def register(sub) -> None:
-    from ..contract.settings import add_arguments
     from ..recon.config import FitConfig
+    from . import add_stage
 
-    p = sub.add_parser("fit", help="reconstruct visible and hidden geometry (fast grid or PlatoNeRF MLP)",
-                       description="Fit a density field to two-bounce lidar measurements and export a mesh "
-                                   "(.glb/.ply/.obj in the Blender world frame) with its metadata.")
-    p.add_argument("source", help="dataset directory (preprocessed on the fly) or a measurements .npz")
-    p.add_argument("--out", required=True, help="output directory (checkpoint, volume.npz, mesh.*, fit.json)")
-    add_arguments(p, FitConfig, FIT_FLAGS)
-    p.add_argument("--quiet", action="store_true", help="no progress bar (same as --no-progress)")
-    p.add_argument("--no-mesh", action="store_true", help="skip the mesh export (volume.npz only)")
-    p.add_argument("--no-uv", action="store_true",
-                   help="skip the xatlas UV atlas (about a third of a 128 px fit's wall time; "
-                        "only texture painting or baking in Blender needs it)")
-    p.set_defaults(func=run)
+    add_stage(sub, "fit", run, FitConfig, FIT_FLAGS,
+              help="reconstruct visible and hidden geometry (fast grid or PlatoNeRF MLP)",
+              description="Fit a density field to two-bounce lidar measurements and export a mesh (.glb/.ply/.obj "
+                          "in the Blender world frame) with its metadata.",
+              arguments=((("source",), {"help": "dataset directory (preprocessed on the fly) or a measurements "
+                                                ".npz"}),
+                         (("--out",), {"required": True, "help": "output directory (checkpoint, volume.npz, "
+                                                                 "mesh.*, fit.json)"}),
+                         (("--quiet",), {"action": "store_true", "help": "no progress bar (same as "
+                                                                         "--no-progress)"}),
+                         (("--no-mesh",), {"action": "store_true", "help": "skip the mesh export (volume.npz "
+                                                                           "only)"}),
+                         (("--no-uv",), {"action": "store_true", "help": "skip the xatlas UV atlas (about a third "
+                                         "of a 128 px fit's wall time; only texture painting or baking in Blender "
+                                         "needs it)"})))
 
 
 def run(args) -> int:

@@ -5,38 +5,26 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from ..preprocess import PreprocessSettings
+from . import DEVICE_FLAGS, DeviceSettings, add_stage
 
 PREPROCESS_FLAGS = ("preprocess.shadow_threshold", "preprocess.parallel_sin", "preprocess.refine",
                     "preprocess.background", "preprocess.gate_max_m")
-DEVICE_FLAGS = ("device", "threads")
 
 
 @dataclass
-class PreprocessCommand:
+class PreprocessCommand(DeviceSettings):
     """Settings of `preprocess` (also the first part of `baseline`)."""
 
     preprocess: PreprocessSettings = field(default_factory=PreprocessSettings)
-    device: str = "cpu"               # torch device: auto, cpu, cuda, cuda:N
-    threads: int | None = None        # CPU threads for torch (None: torch's choice; 1 is faster on a busy machine)
-
-    SETTINGS_META = {"threads": {"range": (1, None)}}
-
-    def validate(self):
-        from ..contract.settings import check_device_name
-
-        check_device_name(self.device)
 
 
 def register(sub) -> None:
-    from ..contract.settings import add_arguments
-
-    p = sub.add_parser("preprocess", help="transients -> measurements (.npz)",
-                       description="First bounce, pulse, time gate, matched filter (shadow masks), sub-bin "
-                                   "two-bounce paths and the closed-form visible depth, for every enabled spot.")
-    p.add_argument("dataset", help="dataset directory (dataset.json)")
-    p.add_argument("--out", required=True, help="output .npz")
-    add_arguments(p, PreprocessCommand, PREPROCESS_FLAGS + DEVICE_FLAGS)
-    p.set_defaults(func=run)
+    add_stage(sub, "preprocess", run, PreprocessCommand, PREPROCESS_FLAGS + DEVICE_FLAGS,
+              help="transients -> measurements (.npz)",
+              description="First bounce, pulse, time gate, matched filter (shadow masks), sub-bin two-bounce "
+                          "paths and the closed-form visible depth, for every enabled spot.",
+              arguments=((("dataset",), {"help": "dataset directory (dataset.json)"}),
+                         (("--out",), {"required": True, "help": "output .npz"})))
 
 
 def summarize(meas) -> str:

@@ -20,6 +20,7 @@ import dataclasses
 import io
 import json
 import math
+import textwrap
 import tokenize
 import types
 import typing
@@ -50,25 +51,33 @@ class Spec:
 
 
 def _comments(cls) -> dict:
-    """Trailing '# ...' comment of each field line in the class body (continuation lines appended)."""
+    """Trailing '# ...' comment of each field line in the class body, plus the comment-only lines right
+    below it (indented past the field names); comments anywhere else (e.g. in methods) are not help."""
     import inspect
 
     try:
-        src = inspect.getsource(cls)
+        src = textwrap.dedent(inspect.getsource(cls))     # a class defined inside a function is indented
     except (OSError, TypeError):
         return {}
-    out, last, last_line = {}, None, -1
+    out, last, last_line, new_statement = {}, None, -1, True
     names = {f.name for f in dataclasses.fields(cls)}
     for tok in tokenize.generate_tokens(io.StringIO(src).readline):
-        if tok.type == tokenize.NAME and tok.start[1] == 4 and tok.string in names and last_line != tok.start[0]:
-            last, last_line = tok.string, tok.start[0]
-        elif tok.type == tokenize.COMMENT and last is not None:
+        if tok.type in (tokenize.NL, tokenize.INDENT, tokenize.DEDENT):
+            continue
+        if tok.type == tokenize.NEWLINE:
+            new_statement = True
+        elif tok.type == tokenize.COMMENT:
             text = tok.string.lstrip("#").strip()
-            if tok.start[0] == last_line:
-                out[last] = text
-            elif tok.start[1] > 4 and last in out:     # an indented continuation of the comment
-                out[last] += " " + text
+            alone = tok.line.lstrip().startswith("#")
+            if last is not None and not alone and last not in out:
+                out[last], last_line = text, tok.start[0]
+            elif last in out and alone and tok.start[0] == last_line + 1 and tok.start[1] > 4:
+                out[last] += " " + text     # an indented continuation of the comment
                 last_line = tok.start[0]
+        elif new_statement:             # the first token of a statement: a field, or something else
+            new_statement = False
+            is_field = tok.type == tokenize.NAME and tok.start[1] == 4 and tok.string in names
+            last = tok.string if is_field else None
     return out
 
 
@@ -90,7 +99,10 @@ def specs(cls, prefix: str = "") -> tuple:
     """Spec of every field of a settings dataclass (sections included, not expanded)."""
     hints = typing.get_type_hints(cls)
     meta = getattr(cls, "SETTINGS_META", {})
-    notes = _comments(cls)
+    notes = {}
+    for base in reversed(cls.__mro__):     # a field inherited from a settings base keeps its help
+        if dataclasses.is_dataclass(base):
+            notes.update(_comments(base))
     out = []
     for f in dataclasses.fields(cls):
         if not f.init:
@@ -326,8 +338,6 @@ def add_arguments(parser: argparse.ArgumentParser, cls, flags=(), sets: bool = T
         dest_keys[dest] = key
     parser._settings_flags = dest_keys
     if sets:
-        import textwrap
-
         listing = ", ".join(f"{s.key}={s.default}" for s in all_specs(cls))
         parser.epilog = "settings (--set KEY=VALUE, or --config FILE): " + listing
         parser.epilog = "\n".join(textwrap.wrap(parser.epilog, 100, subsequent_indent="  "))

@@ -44,11 +44,14 @@ class ObjectMetricSettings:
     seed: int = 0
 
     def validate(self):
+        from ..contract.errors import SettingsError
+
         if not self.thresholds_m or any(not t > 0 for t in self.thresholds_m):
-            raise ValueError(f"thresholds_m must be positive distances, got {self.thresholds_m}")
+            raise SettingsError("object_metric_settings.thresholds_m",
+                                f"expected positive distances (m), got {self.thresholds_m}")
         for name in ("spurious_m", "contact_m", "region_margin_m", "recon_samples_per_m2"):
             if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+                raise SettingsError(f"object_metric_settings.{name}", f"expected a value > 0, got {getattr(self, name)}")
 
 
 class Surface:
