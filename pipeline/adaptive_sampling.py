@@ -11,7 +11,11 @@ each is detected per spot from the base samples alone (flag_pixels):
 - a shadow edge: lit and dark (in shadow or facing away) samples within the pixel's 3 x 3
   neighbourhood; this catches penumbra pixels whose base samples are all dark but which are
   partly lit (they must get their partial energy, not stay dark);
-- a silhouette: samples that see a surface next to samples that see nothing.
+- a silhouette: samples that see a surface next to samples that see nothing;
+- a shading crease: the shading normal jumps inside the pixel or to a neighbour (facets of a
+  flat-shaded curved surface, too shallow for a depth edge) where the radiance there changes
+  by more than `crease_contrast` (near grazing light a 2 degree facet turn changes it by tens of
+  per cent, and 2 x 2 samples weight the two facets wrongly).
 
 Flagged pixels are sampled again with n x n stratified rays (RefinedGeometry, Embree, cached
 across spots since the camera rays do not depend on the light), and those samples replace the
@@ -98,12 +102,60 @@ def surface_breaks(positions, normals, valid, slope: float = 0.1, floor_m: float
     return out
 
 
-def flag_pixels(paths, lit, valid, bin_width_m: float, spread_bins: float = 1.0, breaks=None) -> dict:
+def normal_breaks(normals, valid, max_angle_deg: float = 0.5) -> np.ndarray:
+    """Pixels (H, W) whose samples' shading normals, or whose first sample's and a 4-neighbour's, differ by
+    more than max_angle_deg: facet edges and curved surfaces. Spot-independent; normals (S, H, W, 3)."""
+    n = np.asarray(normals, np.float64)
+    n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-30)
+    valid = np.asarray(valid, bool)
+    cos_tol = np.cos(np.radians(max_angle_deg))
+
+    def turn(na, va, nb, vb):
+        return va & vb & (np.abs(np.einsum("...c,...c->...", na, nb)) < cos_tol)   # two-sided surfaces
+
+    out = np.zeros(valid.shape[1:], bool)
+    for j in range(1, n.shape[0]):
+        out |= turn(n[0], valid[0], n[j], valid[j])
+    right = turn(n[0, :, :-1], valid[0, :, :-1], n[0, :, 1:], valid[0, :, 1:])
+    down = turn(n[0, :-1], valid[0, :-1], n[0, 1:], valid[0, 1:])
+    out[:, :-1] |= right
+    out[:, 1:] |= right
+    out[:-1] |= down
+    out[1:] |= down
+    return out
+
+
+def radiance_contrast(radiance, valid) -> np.ndarray:
+    """Relative change of radiance across each pixel (H, W): the range of its samples, or the jump of its
+    mean to a 4-neighbour's, over the larger value. radiance, valid (S, H, W)."""
+    r = np.where(valid, np.asarray(radiance, np.float64), np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        hi, lo, mean = np.nanmax(r, axis=0), np.nanmin(r, axis=0), np.nanmean(r, axis=0)
+        out = np.where(hi > 0, (hi - lo) / hi, 0.0)
+        for axis in (0, 1):
+            a = np.take(mean, np.arange(mean.shape[axis] - 1), axis=axis)
+            b = np.take(mean, np.arange(1, mean.shape[axis]), axis=axis)
+            top = np.fmax(a, b)
+            d = np.where(top > 0, np.abs(a - b) / top, 0.0)
+            d = np.where(np.isfinite(d), d, 0.0)
+            pad_lo = [(0, 0), (0, 0)]
+            pad_hi = [(0, 0), (0, 0)]
+            pad_lo[axis], pad_hi[axis] = (0, 1), (1, 0)
+            out = np.fmax(out, np.pad(d, pad_lo))
+            out = np.fmax(out, np.pad(d, pad_hi))
+    return np.where(np.isfinite(out), out, 0.0)
+
+
+def flag_pixels(paths, lit, valid, bin_width_m: float, spread_bins: float = 1.0, breaks=None,
+                creases=None, radiance=None, crease_contrast: float = 0.1) -> dict:
     """Pixels whose footprint the base samples do not integrate well, by reason (each (H, W) bool).
 
     'depth': a step or crease (surface_breaks, given as `breaks`; without it, a jump to a
     neighbour well beyond the pixel's own spread); 'shadow': lit and dark samples in the 3 x 3
-    neighbourhood; 'silhouette': surface next to void; 'edge' = depth | shadow | silhouette;
+    neighbourhood; 'silhouette': surface next to void; 'shading': a normal turn (normal_breaks,
+    given as `creases`) where the radiance (S, H, W) changes by more than crease_contrast
+    (radiance_contrast); 'edge' = depth | shadow | silhouette | shading;
     'resample' = edge pixels with a lit sample in their 3 x 3 neighbourhood (new rays: only there
     can light be missing); 'spread': other lit pixels whose path spreads over more than
     `spread_bins` bins (integrated by interpolating the base samples, no new rays).
@@ -127,10 +179,14 @@ def flag_pixels(paths, lit, valid, bin_width_m: float, spread_bins: float = 1.0,
     shadow = (lit_any & dark_any) | (dark_any & near_lit) | (lit_any & binary_dilation(dark_any, _NEIGHBOURS_8))
     void_any = (~valid).any(axis=0)
     silhouette = (valid_any & void_any) | (valid_any & binary_dilation(void_any, _NEIGHBOURS_8))
-    edge = depth | shadow | silhouette
+    shading = np.zeros_like(depth)
+    if creases is not None and radiance is not None:
+        shading = np.asarray(creases, bool) & lit_any & (radiance_contrast(radiance, lit) > crease_contrast)
+    edge = depth | shadow | silhouette | shading
     resample = edge & near_lit
     spread = valid_any & lit_any & (np.maximum(own, jump) > thr) & ~resample
-    return {"spread": spread, "depth": depth, "shadow": shadow, "silhouette": silhouette, "edge": edge,
+    return {"spread": spread, "depth": depth, "shadow": shadow, "silhouette": silhouette, "shading": shading,
+            "edge": edge,
             "resample": resample, "any": spread | resample}
 
 
@@ -165,10 +221,11 @@ def footprint_samples(values: np.ndarray, side_out: int) -> np.ndarray:
 class RefinedGeometry:
     """n x n stratified camera-ray hits of flagged pixels, computed once per pixel for all spots.
 
-    Per sample: world position, normal and albedo. Normal and albedo come from the pixel's
-    nearest base sample on the same surface (Cycles' shading normal and Diffuse Color, so
-    smooth shading and textures carry over), else from the hit triangle (face normal, the
-    object's albedo).
+    Per sample: world position, shading normal and albedo. The normal is the hit triangle's corner
+    normals interpolated at the hit (what Cycles shades with: flat faces keep their face normal, a
+    faceted curved wall must not borrow a neighbouring facet's). The albedo comes from the pixel's
+    nearest base sample on the same surface (Cycles' Diffuse Color, so textures carry over), else
+    the object's albedo.
     """
 
     def __init__(self, rays: SceneRays, sensor, base_geometry, side: int):
@@ -178,10 +235,9 @@ class RefinedGeometry:
         self.rot, self.centre = c2w[:3, :3], c2w[:3, 3]
         self.width, self.height = sensor.width, sensor.height
         self.f_px = focal_length_px(sensor.width, sensor.height, sensor.fov_rad, sensor.fov_axis)
-        pos, nrm, alb, valid = base_geometry
+        pos, _, alb, valid = base_geometry
         s = pos.shape[0]
         self.base_pos = pos.reshape(s, -1, 3)
-        self.base_nrm = nrm.reshape(s, -1, 3)
         self.base_alb = alb.reshape(s, -1, alb.shape[-1]).mean(axis=-1)
         self.base_valid = valid.reshape(s, -1)
         self.offsets = stratified_offsets(self.side)
@@ -214,14 +270,12 @@ class RefinedGeometry:
         v = -(row[:, None] + 0.5 + self.offsets[None, :, 1] - 0.5 * self.height) / self.f_px
         d_cam = np.stack([u, v, -np.ones_like(u)], -1)
         d = (d_cam / np.linalg.norm(d_cam, axis=-1, keepdims=True)) @ self.rot.T
-        hit, dist, face = self.rays.first_hits(np.broadcast_to(self.centre, (m * n, 3)),
-                                               d.reshape(-1, 3))
+        hit, dist, face, nrm = self.rays.first_hits(np.broadcast_to(self.centre, (m * n, 3)), d.reshape(-1, 3),
+                                                    shading_normals=True)
         x = self.centre + d.reshape(-1, 3) * np.where(hit, dist, 0.0)[:, None]
         fn = self.rays.face_normals[np.maximum(face, 0)]
-        fn = np.where((np.einsum("ij,ij->i", fn, self.centre - x) < 0)[:, None], -fn, fn)
         alb = (self.rays.face_albedo[np.maximum(face, 0)] if self.rays.face_albedo is not None
                else np.full(m * n, 0.8))
-        nrm = fn.copy()
         # nearest base sample of the same pixel lying on the hit's tangent plane: same surface
         bp = self.base_pos[:, pixels].transpose(1, 0, 2).astype(np.float64)     # (m, S, 3)
         bv = self.base_valid[:, pixels].T
@@ -233,11 +287,6 @@ class RefinedGeometry:
         dist_b = np.where(same, dist_b, np.inf)
         k = np.argmin(dist_b, axis=-1)                                            # (m, n)
         ok = np.isfinite(np.take_along_axis(dist_b, k[..., None], -1)[..., 0]).reshape(-1) & hit
-        pix_rep = np.repeat(pixels, n)
-        kk = k.reshape(-1)
-        bn = self.base_nrm[kk, pix_rep].astype(np.float64)
-        bn = np.where((np.einsum("ij,ij->i", bn, self.centre - x) < 0)[:, None], -bn, bn)
-        nrm[ok] = bn[ok]
-        alb = np.where(ok, self.base_alb[kk, pix_rep], alb)
+        alb = np.where(ok, self.base_alb[k.reshape(-1), np.repeat(pixels, n)], alb)
         return (x.reshape(m, n, 3).astype(np.float32), nrm.reshape(m, n, 3).astype(np.float32),
                 alb.reshape(m, n).astype(np.float32), hit.reshape(m, n))

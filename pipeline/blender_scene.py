@@ -13,7 +13,7 @@ import numpy as np
 from mathutils import Matrix, Vector
 
 from torch_recon.contract.errors import PlatolidarError
-from pipeline.config import CONFIG_TEXT_NAME, SimulationConfig, SpotConfig
+from torch_recon.contract.simulation import CONFIG_TEXT_NAME, SimulationConfig, SpotConfig
 from torch_recon.contract.scene_objects import OBJECTS_COLLECTION
 from torch_recon.contract.scenes import AreaLight, BlenderPrimitive, ExampleScene, MeshPart
 
@@ -243,8 +243,18 @@ def object_albedo(obj) -> float | None:
 
 
 def world_triangles(depsgraph):
-    """All render-visible evaluated mesh geometry in the world frame: (vertices, faces, object index per face)."""
-    verts, faces, owner, off = [], [], [], 0
+    """All render-visible evaluated mesh geometry in the world frame: (vertices, faces, object index per face, names)."""
+    return world_geometry(depsgraph, corner_normals=False)[0]
+
+
+def world_geometry(depsgraph, corner_normals: bool = True):
+    """(world_triangles' tuple, corner normals (T, 3, 3) float32 or None).
+
+    Corner normals are the shading normals Cycles interpolates over each triangle (Blender's split
+    normals: the face normal on flat faces, vertex normals on smooth ones, custom normals kept),
+    in the world frame.
+    """
+    verts, faces, owner, normals, off = [], [], [], [], 0
     names = []
     for inst in depsgraph.object_instances:
         obj = inst.object
@@ -270,10 +280,19 @@ def world_triangles(depsgraph):
             owner.append(np.full(n_t, len(names)))
             names.append(obj.original.name if obj.original else obj.name)
             off += n_v
+            if corner_normals:
+                sn = np.empty(n_t * 9, np.float32)
+                me.loop_triangles.foreach_get("split_normals", sn)
+                normal_matrix = np.linalg.inv(m[:3, :3]).T        # normals transform by the inverse transpose
+                n = sn.reshape(-1, 3).astype(np.float64) @ normal_matrix.T
+                n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+                normals.append(n.reshape(n_t, 3, 3).astype(np.float32))
         obj.to_mesh_clear()
     if not verts:
-        return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64), names
-    return np.concatenate(verts), np.concatenate(faces), np.concatenate(owner), names
+        return (np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64), names), \
+            (np.zeros((0, 3, 3), np.float32) if corner_normals else None)
+    tris = (np.concatenate(verts), np.concatenate(faces), np.concatenate(owner), names)
+    return tris, (np.concatenate(normals) if corner_normals else None)
 
 
 def scene_lights(scene):

@@ -195,17 +195,8 @@ def apply_sensor(expected, sensor: SensorSpec, noise: NoiseSpec, rng: np.random.
         if need.any():                       # gate without a known path: strongest window
             st[need] = _strongest_starts(block[need], g)
         vals = block if g == t else np.take_along_axis(block, st[:, None] + offsets[None, :], axis=1)
-        if noise.photon_counts:
-            _poisson_counts(vals, scale, bg_flat[a:b], rng, out=window[a:b])
-        else:
-            np.multiply(vals, scale, out=window[a:b], casting="unsafe")
-            window[a:b] += bg_flat[a:b, None]
-    if sample_type == "float16":
-        peak = float(window.max()) if window.size else 0.0
-        if peak > FLOAT16_MAX:
-            raise ValueError(f"sample_type float16: a value of {peak:.0f} exceeds the float16 maximum "
-                             f"{FLOAT16_MAX:.0f}; lower photons_per_pixel or store float32")
-        window = window.astype(np.float16).astype(np.float32)
+        _detect(vals, scale, bg_flat[a:b], noise, rng, out=window[a:b])
+    window = _stored_as(window, sample_type)
 
     tr = Transient(start.reshape(h, w), window.reshape(h, w, g), t)
     layout = TransientLayout(kind="dense" if g == t else "windowed", window_bins=g, sample_type=sample_type)
@@ -215,6 +206,28 @@ def apply_sensor(expected, sensor: SensorSpec, noise: NoiseSpec, rng: np.random.
             "gated": bool(gate.enabled), "window_bins": g, "layout_kind": layout.kind,
             "photon_counts": bool(noise.photon_counts)}
     return tr, layout, info
+
+
+def _detect(vals, scale: float, bg, noise: NoiseSpec, rng, *, out) -> None:
+    """One chunk of pixels' expected values (N, G) -> detected samples in `out`: Poisson counts, or the
+    scaled expectation plus the background rate bg (N,) per bin (None: no background)."""
+    if noise.photon_counts:
+        _poisson_counts(vals, scale, np.zeros(len(vals)) if bg is None else bg, rng, out=out)
+    else:
+        np.multiply(vals, scale, out=out, casting="unsafe")
+        if bg is not None:
+            out += bg[:, None]
+
+
+def _stored_as(window: np.ndarray, sample_type: str) -> np.ndarray:
+    """The samples rounded to the stored sample type (float16 keeps float32 arrays; refuses overflow)."""
+    if sample_type != "float16":
+        return window
+    peak = float(window.max()) if window.size else 0.0
+    if peak > FLOAT16_MAX:
+        raise ValueError(f"sample_type float16: a value of {peak:.0f} exceeds the float16 maximum "
+                         f"{FLOAT16_MAX:.0f}; lower photons_per_pixel or store float32")
+    return window.astype(np.float16).astype(np.float32)
 
 
 def widen_window(tr: Transient, window_bins: int) -> Transient:
@@ -264,18 +277,9 @@ def apply_sensor_windows(start, window, sensor: SensorSpec, noise: NoiseSpec, rn
     if not float(flat.max(initial=0.0)) * scale <= np.finfo(np.float32).max:
         raise ValueError("photons_per_pixel: the scaled transient overflows float32; lower photons_per_pixel")
     out = np.empty_like(flat)
-    zero_bg = np.zeros(CHUNK_PIXELS)
     for a in range(0, h * w, CHUNK_PIXELS):
         b = min(a + CHUNK_PIXELS, h * w)
-        if noise.photon_counts:
-            _poisson_counts(flat[a:b], scale, zero_bg[:b - a], rng, out=out[a:b])
-        else:
-            np.multiply(flat[a:b], scale, out=out[a:b], casting="unsafe")
-    if sample_type == "float16":
-        peak = float(out.max()) if out.size else 0.0
-        if peak > FLOAT16_MAX:
-            raise ValueError(f"sample_type float16: a value of {peak:.0f} exceeds the float16 maximum "
-                             f"{FLOAT16_MAX:.0f}; lower photons_per_pixel or store float32")
-        out = out.astype(np.float16).astype(np.float32)
+        _detect(flat[a:b], scale, None, noise, rng, out=out[a:b])
+    out = _stored_as(out, sample_type)
     tr = Transient(start, out.reshape(h, w, g), t)
     return tr, TransientLayout(kind="dense" if g == t else "windowed", window_bins=g, sample_type=sample_type)

@@ -7,7 +7,7 @@ With the bpy module (Blender as a Python module, e.g. the project's .venv):
     python pipeline/simulate.py --example cave-chair --out DIR --resolution 64
 
 Settings, later ones winning: SimulationConfig defaults < the settings the add-on stored
-in the .blend (Text datablock pipeline.config.CONFIG_TEXT_NAME; for --example, the
+in the .blend (Text datablock torch_recon.contract.simulation.CONFIG_TEXT_NAME; for --example, the
 example's own) < --config FILE.json < command-line options. Options go through
 SimulationConfig.validate(), so an error names the setting.
 
@@ -108,7 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _parse_test_views(text: str):
-    from pipeline.config import ConfigError
+    from torch_recon.contract.simulation import ConfigError
 
     try:
         parts = [int(v) for v in text.split(",")]
@@ -124,7 +124,7 @@ def _parse_test_views(text: str):
 
 
 def _parse_spot_list(text: str):
-    from pipeline.config import ConfigError, SpotConfig
+    from torch_recon.contract.simulation import ConfigError, SpotConfig
 
     spots = []
     for i, item in enumerate(t for t in text.split(";") if t.strip()):
@@ -183,7 +183,7 @@ def apply_options(cfg, args):
 
 
 def load_config(args, bs):
-    from pipeline.config import SimulationConfig
+    from torch_recon.contract.simulation import SimulationConfig
 
     cfg = bs.stored_config() or SimulationConfig()
     if args.config:

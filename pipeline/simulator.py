@@ -34,7 +34,7 @@ from torch_recon.contract.dataset import (DatasetError, DatasetWriter, Manifest,
 from torch_recon.contract.frames import focal_length_px, project_points
 from torch_recon.contract.units import ps_to_m
 
-SIM_VERSION = "1.1"   # 1.1: deferred Lambertian shading, adaptive edge sampling
+SIM_VERSION = "1.2"   # 1.1: deferred Lambertian shading, adaptive edge sampling; 1.2: edge samples shade with corner normals
 LASER_POWER_W = 1.0          # expected values are in units of this power; the sensor model rescales
 RGB_POWER_W = 100.0          # point light of the RGB-shadow images (exposure only)
 DEFAULT_ALBEDO = 0.8
@@ -284,7 +284,7 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
         raise SimulationError(f"setting 'subpixel_samples': expected a square number (1, 4, 9, ...), "
                               f"got {cfg.subpixel_samples}")
     depsgraph = bpy.context.evaluated_depsgraph_get()
-    triangles = bs.world_triangles(depsgraph)
+    triangles, corner_normals = bs.world_geometry(depsgraph)
     if len(triangles[1]) == 0:
         raise SimulationError("the scene has no render-visible mesh geometry")
     plans = plan_spots(cfg, scene, depsgraph, sensor, keep_requested)
@@ -324,7 +324,7 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
         if cfg.shading == "lambertian":
             t0 = time.perf_counter()
             ctx.sampler = SpotSampler(sensor, geometry, triangles, albedos, cfg.adaptive_subpixel_samples,
-                                      cfg.adaptive_spread_bins, LASER_POWER_W)
+                                      cfg.adaptive_spread_bins, LASER_POWER_W, corner_normals=corner_normals)
             _tick(timings, "ray_setup_s", t0)
         while True:   # a second pass only if a spot's signal outgrew the geometric window bound
             try:

@@ -28,7 +28,7 @@ class SpotSampler:
     """What all spots of a run share: base samples, the ray caster and the refined-sample cache."""
 
     def __init__(self, sensor, geometry, triangles, object_albedos, adaptive_samples: int, spread_bins: float,
-                 laser_power_w: float):
+                 laser_power_w: float, corner_normals=None):
         pos, nrm, alb, valid = geometry
         self.sensor = sensor
         self.s = pos.shape[0]
@@ -39,11 +39,13 @@ class SpotSampler:
         self.alb = alb.reshape(self.s, -1, alb.shape[-1]).mean(axis=-1)
         self.valid = valid.reshape(self.s, -1)
         v, f, owner, _ = triangles
-        self.rays = SceneRays(v, f, np.asarray(object_albedos, np.float64)[np.asarray(owner, np.int64)])
+        self.rays = SceneRays(v, f, np.asarray(object_albedos, np.float64)[np.asarray(owner, np.int64)],
+                              corner_normals)
         self.refined = (adaptive_sampling.RefinedGeometry(self.rays, sensor, geometry, int(round(adaptive_samples ** 0.5)))
                         if adaptive_samples else None)
         self.spread_bins = float(spread_bins)
         self.breaks = adaptive_sampling.surface_breaks(pos, nrm, valid) if adaptive_samples else None
+        self.creases = adaptive_sampling.normal_breaks(nrm, valid) if adaptive_samples else None
         self.power = float(laser_power_w)
         iv = self.valid.reshape(-1)
         self.base = ShadingSamples(self.pos.reshape(-1, 3)[iv], self.nrm.reshape(-1, 3)[iv], self.alb.reshape(-1)[iv],
@@ -81,9 +83,10 @@ class SpotSampler:
             h, w = self.sensor.height, self.sensor.width
             flags = adaptive_sampling.flag_pixels(path.reshape(self.s, h, w), rad.reshape(self.s, h, w) > 0,
                                                   self.valid.reshape(self.s, h, w), self.sensor.bin_width_m,
-                                                  self.spread_bins, self.breaks)
+                                                  self.spread_bins, self.breaks, self.creases,
+                                                  rad.reshape(self.s, h, w))
             edge = np.flatnonzero(flags["resample"])
-            counts = {"edge": len(edge)}
+            counts = {"edge": len(edge), "crease": int(flags["shading"].sum())}
             if len(edge):                       # new rays: shadow, depth and silhouette edges
                 keep[edge] = False
                 xr, nr, ar, vr = self.refined.samples(edge)

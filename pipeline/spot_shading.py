@@ -29,33 +29,51 @@ RAY_EPS_M = 1e-4
 class SceneRays:
     """Embree scene of world triangles: first hits and occlusion tests (float32, like Cycles)."""
 
-    def __init__(self, vertices, faces, face_albedo=None):
+    def __init__(self, vertices, faces, face_albedo=None, corner_normals=None):
         v = np.asarray(vertices, np.float64)
         f = np.asarray(faces, np.int64)
         self.triangles = v[f].astype(np.float32)
         n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
         self.face_normals = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
         self.face_albedo = None if face_albedo is None else np.asarray(face_albedo, np.float64)
+        # (T, 3, 3) shading normals at the corners (blender_scene.world_geometry); None: flat faces
+        self.corner_normals = None if corner_normals is None else np.asarray(corner_normals, np.float32)
+        if self.corner_normals is not None and self.corner_normals.shape != (len(f), 3, 3):
+            raise ValueError(f"corner_normals: expected shape {(len(f), 3, 3)}, got {self.corner_normals.shape}")
         self.scene = rtcore_scene.EmbreeScene()
         TriangleMesh(self.scene, self.triangles)
 
-    def first_hits(self, origins, dirs):
-        """(hit (N,), distance (N,), face (N,)) of rays from origins along unit dirs."""
+    def first_hits(self, origins, dirs, shading_normals: bool = False):
+        """(hit (N,), distance (N,), face (N,)) of rays from origins along unit dirs; with shading_normals
+        also the unit normal (N, 3) at each hit: the corner normals interpolated as Cycles does, else the
+        face normal (not yet turned towards the ray)."""
         o = np.ascontiguousarray(origins, np.float32)
         d = np.ascontiguousarray(dirs, np.float32)
         if not len(o):
-            return np.zeros(0, bool), np.zeros(0), np.zeros(0, np.int64)
+            empty = (np.zeros(0, bool), np.zeros(0), np.zeros(0, np.int64))
+            return (*empty, np.zeros((0, 3))) if shading_normals else empty
         res = self.scene.run(o, d, output=1)
         face = np.asarray(res["primID"], np.int64)
         hit = face >= 0
         dist = np.where(hit, np.asarray(res["tfar"], np.float64), np.inf)
-        return hit, dist, face
+        if not shading_normals:
+            return hit, dist, face
+        fi = np.maximum(face, 0)
+        if self.corner_normals is None:
+            return hit, dist, face, self.face_normals[fi]
+        u = np.asarray(res["u"], np.float64)[:, None]       # Embree: x = (1 - u - v) v0 + u v1 + v v2
+        w = np.asarray(res["v"], np.float64)[:, None]
+        cn = self.corner_normals[fi].astype(np.float64)
+        n = (1.0 - u - w) * cn[:, 0] + u * cn[:, 1] + w * cn[:, 2]
+        n_len = np.linalg.norm(n, axis=1, keepdims=True)
+        n = np.where(n_len > 1e-12, n / np.maximum(n_len, 1e-30), self.face_normals[fi])
+        return hit, dist, face, n
 
     def unoccluded(self, a, b) -> np.ndarray:
         """True where the open segment a -> b (N, 3) is free of triangles."""
         a = np.asarray(a, np.float64)
         d = np.asarray(b, np.float64) - a
-        length = np.linalg.norm(d, axis=1)
+        length = np.sqrt(np.einsum("ij,ij->i", d, d))
         out = np.ones(len(a), bool)
         ok = length > 2 * RAY_EPS_M
         if not ok.any():
@@ -90,11 +108,11 @@ def two_bounce_radiance(rays: SceneRays, samples: ShadingSamples, first_bounce, 
     l = np.asarray(first_bounce, np.float64)
     n_l = np.asarray(normal_l, np.float32)
     v = l.astype(np.float32) - samples.x
-    r = np.linalg.norm(v, axis=1)
+    r = np.sqrt(np.einsum("ij,ij->i", v, v))
     safe = r > 1e-6
-    u = v / np.where(safe, r, np.float32(1.0))[:, None]
-    cos_x = np.einsum("ij,ij->i", samples.n, u)
-    cos_l = -(u @ n_l)
+    inv_r = np.float32(1.0) / np.where(safe, r, np.float32(1.0))
+    cos_x = np.einsum("ij,ij->i", samples.n, v) * inv_r       # no (N, 3) unit vectors: two dot products
+    cos_l = -(v @ n_l) * inv_r
     lit = safe & (cos_x > 0) & (cos_l > 0)
     idx = np.flatnonzero(lit)
     lit[idx] = rays.unoccluded(samples.x[idx] + RAY_EPS_M * samples.n[idx],

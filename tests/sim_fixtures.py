@@ -24,7 +24,7 @@ _BUILD = """
 import json, sys, bpy
 sys.path.insert(0, {root!r})
 from pipeline.blender_scene import diffuse_material, store_config
-from pipeline.config import SimulationConfig, SpotConfig
+from torch_recon.contract.simulation import SimulationConfig, SpotConfig
 from torch_recon.contract.scenes import box
 from torch_recon.contract.frames import look_at_c2w
 from mathutils import Matrix

@@ -18,13 +18,15 @@ import numpy as np
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
 from stress_checks import (CheckFailed, NonFinite, check_dataset, fit_checked, preprocess_checked,
-                                      smooth_sweep, transient_bytes_equal)
+                           reference_shadow_agreement, smooth_sweep, transient_bytes_equal)
 
 PHOTON_LEVELS = (1, 3, 10, 30, 100, 1000, 10000)
-# Shadow-mask agreement with the analytic render on 16 x 16 Cycles data: a pixel there spans ~0.25 m
-# of wall at 2 m, its return spreads over many bins and the matched-filter confidence of some lit
-# pixels falls under the 0.15 threshold (about 12 % of lit pixels in sim-no-shadows).
-SIM_SHADOW_AGREEMENT = 0.75
+# Shadow-mask agreement with the analytic render on 16 x 16 Cycles data, at most this far below what the
+# exact footprint-integrated transients (analytic, 16 x 16 samples per pixel) score through the same
+# preprocessing. A pixel there spans ~0.25 m of wall at 2 m, its return spreads over many bins and the
+# matched-filter confidence of lit pixels falls under the 0.15 threshold: perfect data scores 0.36 on
+# the 16 x 16 cave (0.80 with 2 x 2 samples per pixel, which under-sample the footprint).
+SIM_SHADOW_AGREEMENT_MARGIN = 0.05
 
 #: cases that fail because of a known bug -> reason (reported; the tests mark them xfail, strict,
 #: so a fix makes the test fail until the entry is removed). Found and since fixed: sim-all-shadow (photon scale
@@ -276,15 +278,22 @@ def _sim_cli(args, work):
 
 # ---------------------------------------------------------------- post-checks of simulator cases
 
-def post_pipeline(fit=False, max_rel_err=None, min_shadow_agreement=None):
+def post_pipeline(fit=False, max_rel_err=None, max_shadow_shortfall=None):
+    """max_shadow_shortfall: how far the shadow agreement may fall below the exact data's (reference_shadow_agreement)."""
     def fn(ds_path, work):
         m = pipeline(ds_path, work / Path(ds_path).name, fit=fit)
         rel = m.get("depth_median_rel_err")
         if max_rel_err is not None and (rel is None or rel > max_rel_err):
             raise CheckFailed(f"visible-depth median relative error {rel} > {max_rel_err}", m)
+        if max_shadow_shortfall is None:
+            return m
+        from torch_recon.contract.dataset import load_dataset
+        from torch_recon.preprocess import PreprocessSettings
         agree = m.get("shadow_agreement")
-        if min_shadow_agreement is not None and (agree is None or agree < min_shadow_agreement):
-            raise CheckFailed(f"shadow mask agrees with the analytic one on {agree} < {min_shadow_agreement}", m)
+        ref = m["shadow_agreement_reference"] = reference_shadow_agreement(load_dataset(ds_path), PreprocessSettings())
+        if agree is None or agree < ref - max_shadow_shortfall:
+            raise CheckFailed(f"shadow mask agrees with the analytic one on {agree}, more than "
+                              f"{max_shadow_shortfall} below exact footprint-integrated data's {ref}", m)
         return m
     return fn
 
@@ -316,7 +325,7 @@ def all_cases(Case):
     rel = 0.03   # visible depth within 3 % of the range (16 x 16 pixels, 4 spots)
     return [
         # simulator (one worker)
-        C("sim-room-0.1m", "sim", "ok", True, post_pipeline(max_rel_err=rel, min_shadow_agreement=SIM_SHADOW_AGREEMENT), note="room 0.1 m, 3.2 ps bins"),
+        C("sim-room-0.1m", "sim", "ok", True, post_pipeline(max_rel_err=rel, max_shadow_shortfall=SIM_SHADOW_AGREEMENT_MARGIN), note="room 0.1 m, 3.2 ps bins"),
         C("sim-room-1m", "sim", "ok", False, post_pipeline(max_rel_err=rel)),
         C("sim-room-4m", "sim", "ok", False, post_pipeline(fit=True, max_rel_err=rel), note="paper scale"),
         C("sim-room-10m", "sim", "ok", False, post_pipeline(max_rel_err=rel)),
@@ -326,7 +335,7 @@ def all_cases(Case):
         C("sim-laser-offset-1mm", "sim", "ok", False, post_pipeline(max_rel_err=rel)),
         C("sim-surface-at-sensor", "sim", "any", False, post_pipeline()),
         C("sim-sensor-inside-box", "sim", "any", False, post_dataset_only),
-        C("sim-no-shadows", "sim", "ok", False, post_pipeline(max_rel_err=rel, min_shadow_agreement=SIM_SHADOW_AGREEMENT)),
+        C("sim-no-shadows", "sim", "ok", False, post_pipeline(max_rel_err=rel, max_shadow_shortfall=SIM_SHADOW_AGREEMENT_MARGIN)),
         C("sim-all-shadow", "sim", "ok", True, post_all_shadow, note="default photon budget"),
         C("sim-all-shadow-radiance", "sim", "ok", False, post_all_shadow, note="radiance units (photons 0)"),
         C("sim-photons-1", "sim", "any", False, post_pipeline()),

@@ -108,7 +108,7 @@ def run_case(name, out: Path) -> dict:
 
     from pipeline import blender_scene as bs
     from pipeline import simulator
-    from pipeline.config import ConfigError, SpotConfig
+    from torch_recon.contract.simulation import ConfigError, SpotConfig
 
     spec = SIM_CASES[name]
     ex = scaled_scene(spec)

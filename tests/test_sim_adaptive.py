@@ -144,3 +144,37 @@ def test_footprint_samples_keep_the_mean_and_span_the_pixel():
     assert fine.mean() == pytest.approx(2.5)
     assert fine.min() == pytest.approx(2.5 - 6 * 0.375) and fine.max() == pytest.approx(2.5 + 6 * 0.375)
     assert fine[0, 1] - fine[0, 0] == pytest.approx(2 * 0.25)           # dx fastest, as Cycles' sub-samples
+
+
+def test_edge_samples_shade_with_interpolated_corner_normals():
+    """Refined samples take the normal Cycles shades with: corner normals interpolated at the hit, else the face's."""
+    from pipeline.spot_shading import SceneRays
+
+    v = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    corner = np.array([[[0, 0, 1.0], [0.6, 0, 0.8], [0, 0.6, 0.8]]], np.float32)
+    o, d = np.array([[0.2, 0.3, 1.0]]), np.array([[0.0, 0.0, -1.0]])
+    _, _, _, n_flat = SceneRays(v, [[0, 1, 2]]).first_hits(o, d, shading_normals=True)
+    assert np.allclose(n_flat, [[0, 0, 1]])
+    _, _, _, n = SceneRays(v, [[0, 1, 2]], corner_normals=corner).first_hits(o, d, shading_normals=True)
+    expect = 0.5 * corner[0, 0] + 0.2 * corner[0, 1] + 0.3 * corner[0, 2]
+    assert np.allclose(n[0], expect / np.linalg.norm(expect), atol=1e-6)
+
+
+def test_shallow_facet_edges_are_resampled_where_the_light_changes():
+    """A 2 degree facet turn (too shallow for a depth edge) is flagged where the radiance changes across it."""
+    h = w = 6
+    nrm = np.zeros((4, h, w, 3))
+    nrm[..., 1] = 1.0
+    turn = np.radians(2.0)
+    nrm[:, :, 3:] = [np.sin(turn), np.cos(turn), 0.0]        # columns 3.. on the next facet
+    valid = np.ones((4, h, w), bool)
+    creases = adaptive_sampling.normal_breaks(nrm, valid)
+    assert creases[:, 2:4].all() and not creases[:, :2].any() and not creases[:, 5:].any()
+    flat_light = np.ones((4, h, w))
+    grazing = np.where(np.arange(w) >= 3, 0.7, 1.0) * np.ones((4, h, w))   # the light turns by 30 % there
+    paths = np.full((4, h, w), 5.0)
+    for radiance, flagged in ((flat_light, False), (grazing, True)):
+        f = adaptive_sampling.flag_pixels(paths, radiance > 0, valid, 0.0384, 1.0, np.zeros((h, w), bool), creases,
+                                          radiance)
+        assert f["shading"][:, 2:4].all() == flagged and f["resample"][:, 2:4].all() == flagged
+        assert not f["shading"][:, :2].any() and not f["shading"][:, 5:].any()

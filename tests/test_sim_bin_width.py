@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from pipeline.config import ConfigError, SimulationConfig
+from torch_recon.contract.simulation import ConfigError, SimulationConfig
 from pipeline.simulate import apply_options, build_parser
 from torch_recon.contract.units import m_to_ps, ps_to_m
 

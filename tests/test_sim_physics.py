@@ -145,9 +145,7 @@ def test_ground_truth_depths_and_mesh(ds64, cave):
     assert np.allclose(gt.bounds, mesh.bounds, atol=1e-5)
 
 
-@pytest.mark.parametrize("name", ["occluders", pytest.param("curved-wall", marks=pytest.mark.xfail(
-    reason="issue 14 regression: curved-wall energy within 5 % on 92.7 % of pixels (needs 95 %); open", strict=False)),
-    "low-albedo"])
+@pytest.mark.parametrize("name", ["occluders", "curved-wall", "low-albedo"])
 def test_other_scenes_match_analytic(tmp_path, name):
     """Objects occluding each other, a curved wall, dark walls: same energy, shadows and paths."""
     from scipy.ndimage import binary_erosion

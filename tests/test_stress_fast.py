@@ -21,8 +21,6 @@ def results(tmp_path_factory):
 
 @pytest.mark.parametrize("name", case_params(CASES))
 def test_stress_case(results, name):
-    if name == "sim-room-0.1m":     # issue 14 regression since the Embree shading path: open, session 3 note
-        pytest.xfail("0.1 m room: shadow mask agrees with the analytic one on 35 % (< 75 %) after the new shading")
     check_case(results, name)
 
 
