@@ -20,6 +20,7 @@ COMMAND_MODULES = (
     "torch_recon.commands.fit",
     "torch_recon.commands.evaluate",
     "torch_recon.commands.convert",
+    "torch_recon.commands.batch",
 )
 
 

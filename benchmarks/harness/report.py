@@ -9,6 +9,7 @@ and are rebuilt from results/NAME.json by `python -m benchmarks readme`.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime
 import json
@@ -148,11 +149,29 @@ def plot_rows(rows, path: Path, title: str = "", y: str | None = None, x: str = 
     colour per label: the row's `label` field, or `label(row)` when callable), or as bars per row (kind='bar');
     `hline` = (value, label): a reference line such as the paper's error."""
     name_of = label if callable(label) else (lambda r: str(r.get(label)))
+    y = y or (error_fields(rows) or [x])[0]
+    with figure(path, (6.5, 4)) as ax:
+        _plot_rows_on(ax, rows, name_of, y, x, kind, hline, title)
+    return Path(path)
+
+
+@contextlib.contextmanager
+def figure(path: Path, figsize=(6.5, 4), dpi: int = 110):
+    """`with figure(path) as ax:` one Agg figure, laid out and saved to `path` (folders made) on exit."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    y = y or (error_fields(rows) or [x])[0]
-    fig, ax = plt.subplots(figsize=(6.5, 4))
+    fig, ax = plt.subplots(figsize=figsize)
+    try:
+        yield ax
+        fig.tight_layout()
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=dpi)
+    finally:
+        plt.close(fig)
+
+
+def _plot_rows_on(ax, rows, name_of, y, x, kind, hline, title):
     if kind == "bar":
         names = [f"{name_of(r)}\n{r.get('scene', '')}" for r in rows]
         ax.bar(range(len(rows)), [_num(r.get(y)) for r in rows])
@@ -170,12 +189,6 @@ def plot_rows(rows, path: Path, title: str = "", y: str | None = None, x: str = 
     ax.set_ylabel(y)
     ax.set_title(title, fontsize=9)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
 
 
 def paper_result(spots: int = 16) -> dict:

@@ -182,25 +182,19 @@ def run(s: Settings, ctx) -> list[dict]:
 
 
 def plot(rows, settings, path):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     rows = [r for r in rows if "window_bins" in r and "predicted_gain" in r]
     w = [r["window_bins"] for r in rows]
-    fig, ax = plt.subplots(figsize=(5.5, 4))
-    ax.loglog(w, [r["predicted_gain"] for r in rows], "k--", label="predicted T/W")
-    ax.loglog(w, [r["predicted_gain_pulse_cut"] for r in rows], "k:", label="T/W x pulse fraction in window")
-    ax.loglog(w, [r["predicted_gain_eq5_pulse_cut"] for r in rows], ":", color="grey",
-              label="T/W x squared-pulse fraction (Eq. 5)")
-    ax.loglog(w, [r["measured_gain_intensity"] for r in rows], "o-", label="measured (intensity SBR)")
-    ax.loglog(w, [r["measured_gain_eq5"] for r in rows], "s-", mfc="none", label="measured (supplement Eq. 5)")
-    ax.set_xlabel("gate window W (bins of 128 ps)")
-    ax.set_ylabel("SBR gain over ungated (T = 391 bins)")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    with report.figure(path, (5.5, 4), dpi=120) as ax:
+        ax.loglog(w, [r["predicted_gain"] for r in rows], "k--", label="predicted T/W")
+        ax.loglog(w, [r["predicted_gain_pulse_cut"] for r in rows], "k:", label="T/W x pulse fraction in window")
+        ax.loglog(w, [r["predicted_gain_eq5_pulse_cut"] for r in rows], ":", color="grey",
+                  label="T/W x squared-pulse fraction (Eq. 5)")
+        ax.loglog(w, [r["measured_gain_intensity"] for r in rows], "o-", label="measured (intensity SBR)")
+        ax.loglog(w, [r["measured_gain_eq5"] for r in rows], "s-", mfc="none", label="measured (supplement Eq. 5)")
+        ax.set_xlabel("gate window W (bins of 128 ps)")
+        ax.set_ylabel("SBR gain over ungated (T = 391 bins)")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
 
 
 def readme(results) -> str:

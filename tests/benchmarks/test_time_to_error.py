@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import shlex
+
 from benchmarks.harness.report import check_rows
-from benchmarks.suites.time_to_error import AUTHORS_CURVE, SUITE, reference_rows, time_to_reach
+from benchmarks.suites.time_to_error import AUTHORS_CURVE, GPU_COMMAND, SUITE, reference_rows, time_to_reach
 
 
 def test_reference_rows_are_valid_rows_and_labelled():
@@ -21,4 +23,10 @@ def test_time_to_reach_takes_the_first_checkpoint_at_or_below():
 
 def test_settings_pick_a_device():
     assert SUITE.settings(False, ["device=cuda"]).device == "cuda"
-    assert SUITE.settings(True).pixel_stride > 1            # the quick run stays affordable on a CPU
+    assert SUITE.settings(True).view_stride > 1             # the quick run stays affordable on a CPU
+
+
+def test_the_documented_gpu_command_parses_to_the_issue_setting():
+    args = shlex.split(GPU_COMMAND)
+    s = SUITE.settings(False, [args[i + 1] for i, a in enumerate(args) if a == "--set"])
+    assert (s.device, s.resolution, s.view_stride, s.fast_steps, s.platonerf_budget_s) == ("cuda", 128, 1, None, 1800.0)

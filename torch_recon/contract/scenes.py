@@ -109,15 +109,18 @@ def box(name, lo, hi, albedo) -> MeshPart:
     return MeshPart(name, v, _BOX_FACES.copy(), float(albedo))
 
 
-def room_walls(albedo=WALL_ALBEDO, back_wall=True) -> list:
-    """The paper's room: side walls, floor, ceiling (and back wall) as thin slabs outside the interior."""
-    t = WALL_THICKNESS
-    walls = [box("wall_left", (-2 - t, 0, -2 - t), (-2, 4 + t, 2 + t), albedo),
-             box("wall_right", (2, 0, -2 - t), (2 + t, 4 + t, 2 + t), albedo),
-             box("floor", (-2, 0, -2 - t), (2, 4 + t, -2), albedo),
-             box("ceiling", (-2, 0, 2), (2, 4 + t, 2 + t), albedo)]
+def room_walls(albedo=WALL_ALBEDO, back_wall=True, half_width=2.0, depth=4.0, floor_z=-2.0,
+               ceiling_z=2.0) -> list:
+    """A room open towards the sensor (y = 0): side walls, floor, ceiling (and back wall) as thin slabs
+    outside the interior x in [-half_width, half_width], y in [0, depth], z in [floor_z, ceiling_z].
+    The defaults are the paper's room."""
+    t, w, d, z0, z1 = WALL_THICKNESS, half_width, depth, floor_z, ceiling_z
+    walls = [box("wall_left", (-w - t, 0, z0 - t), (-w, d + t, z1 + t), albedo),
+             box("wall_right", (w, 0, z0 - t), (w + t, d + t, z1 + t), albedo),
+             box("floor", (-w, 0, z0 - t), (w, d + t, z0), albedo),
+             box("ceiling", (-w, 0, z1), (w, d + t, z1 + t), albedo)]
     if back_wall:
-        walls.append(box("wall_back", (-2, 4, -2), (2, 4 + t, 2), albedo))
+        walls.append(box("wall_back", (-w, d, z0), (w, d + t, z1), albedo))
     return walls
 
 
@@ -144,11 +147,13 @@ def chair(albedo=OBJECT_ALBEDO, scale=1.25, base=(0.0, 3.0, -2.0)) -> list:
     return parts
 
 
-def curved_wall(albedo=WALL_ALBEDO, radius=2.5, centre_y=1.5, segments=48, rows=8) -> MeshPart:
-    """Concave back wall: a vertical cylinder section (axis at y=centre_y) spanning x in [-2, 2]."""
-    half = math.asin(2.0 / radius)
+def curved_wall(albedo=WALL_ALBEDO, radius=2.5, centre_y=1.5, segments=48, rows=8, half_width=2.0,
+                floor_z=-2.0, ceiling_z=2.0) -> MeshPart:
+    """Concave back wall: a vertical cylinder section (axis at y=centre_y) spanning x in [-half_width,
+    half_width] and z in [floor_z, ceiling_z] (radius > half_width)."""
+    half = math.asin(half_width / radius)
     ang = np.linspace(-half, half, segments + 1)
-    zs = np.linspace(-2.0, 2.0, rows + 1)
+    zs = np.linspace(floor_z, ceiling_z, rows + 1)
     xs, ys = radius * np.sin(ang), centre_y + radius * np.cos(ang)
     v = np.array([[x, y, z] for z in zs for x, y in zip(xs, ys)], np.float64)
     n = segments + 1

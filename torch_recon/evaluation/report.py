@@ -271,7 +271,8 @@ def _plot_run_summary(path, reports, pictures, timings, title, out):
         ax = fig.add_subplot(gs[row, :])
         ax.imshow(img)
         ax.axis("off")
-        ax.set_title(f"{name}: ground truth | reconstruction | |depth error| (m)", fontsize=10)
+        ax.set_title(f"{name}: ground truth | reconstruction | |depth error| (m; blue: no ground-truth surface)",
+                     fontsize=10)
     fig.suptitle(title, fontsize=12)
     fig.tight_layout(rect=(0, 0, 1, 1 - 0.5 / fig.get_figheight()))   # room for the title
     fig.savefig(path, dpi=80)

@@ -180,6 +180,14 @@ def _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, expo
     return result
 
 
+def voxel_centre_box(volume, bbox_min, bbox_max):
+    """The box of the voxel centres of `volume` over the box (bbox_min, bbox_max): the mesh exporter's grid
+    points span its box corner to corner."""
+    lo, hi = np.asarray(bbox_min, np.float64), np.asarray(bbox_max, np.float64)
+    half = 0.5 * (hi - lo) / np.asarray(np.shape(volume), np.float64)
+    return lo + half, hi - half
+
+
 def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: dict, uv: bool = True,
                   free_space=None, smooth_iterations: int = 0):
     """Marching cubes + cleanup + UVs -> .glb (+ .ply, .obj) through the shared mesh exporter.
@@ -192,9 +200,8 @@ def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: d
     """
     from ..mesh_export import export_mesh
 
-    lo, hi = np.asarray(bbox_min, np.float64), np.asarray(bbox_max, np.float64)
-    half = 0.5 * (hi - lo) / np.asarray(np.shape(volume), np.float64)
-    res = export_mesh(volume, lo + half, hi - half, level, Path(out_path).with_suffix(".glb"), metadata,
+    lo, hi = voxel_centre_box(volume, bbox_min, bbox_max)
+    res = export_mesh(volume, lo, hi, level, Path(out_path).with_suffix(".glb"), metadata,
                       extra_formats=(".ply", ".obj"), uv=uv, free_space=free_space,
                       smooth_iterations=smooth_iterations)
     files = {p.suffix.lstrip("."): p for p in res.paths}

@@ -51,8 +51,12 @@ class FastConfig:
     surface_slope: float = 4.0        # raw-density ramp per voxel across visible surfaces at init (0: binary);
                                       # 16 left the raw field binary at voxel centres (terraced meshes)
     surface_half_width_voxels: float = 2.0  # the signed-distance ramp spans +- this around visible surfaces
-    carve_core: float = 0.3           # a lit ray carves a voxel only through its central 0.6-voxel cube
+    carve_core: float = 0.5           # a lit ray carves every voxel it crosses (0.3: only through the central
+                                      # 0.6 cube; the shadow-consistency pass now keeps thin parts instead)
     carve_spacing_voxels: float = 1.0  # carve with pixels about this many voxels apart at the far surfaces
+    explain_shadows: bool = True      # every shadowed segment keeps a blocker: the lit-carved voxel along it
+                                      # with the highest shadowed / lit crossing ratio is put back (thin parts)
+    explain_camera_free: bool = True   # ... also a voxel the sensor saw through (parts thinner than a pixel)
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
     surface_margin_voxels: float = 1.0  # camera free space stops this far before the visible surface
     occupancy_threshold: float = 0.01  # cells whose neighbourhood has sigma * voxel below this are skipped

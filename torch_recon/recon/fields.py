@@ -11,6 +11,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..contract.errors import MeasurementsError
+
 
 class GridBox:
     """An axis-aligned box cut into cubic voxels; values live at voxel centres."""
@@ -20,7 +22,8 @@ class GridBox:
         hi = torch.as_tensor(bbox_max, dtype=torch.float32)
         ext = hi - lo
         if not torch.all(ext > 0):
-            raise ValueError(f"empty bounding box {lo.tolist()} .. {hi.tolist()}")
+            raise MeasurementsError(f"reconstruction box: empty bounding box {lo.tolist()} .. {hi.tolist()} "
+                                    f"(expected a positive extent on every axis: the measured points are degenerate)")
         self.voxel = float(ext.max()) / int(resolution)
         self.shape = tuple(max(1, int(math.ceil(float(e) / self.voxel - 1e-6))) for e in ext)  # (nx, ny, nz)
         self.bbox_min = lo

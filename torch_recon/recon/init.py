@@ -18,6 +18,7 @@ import math
 import numpy as np
 import torch
 
+from ..contract.errors import UnconstrainedMeasurementsError
 from .data import RayData
 from .fields import DensityGrid, GridBox
 from .sampler import marching_intervals, ray_box
@@ -31,7 +32,8 @@ def scene_bbox(data: RayData, margin_m: float, quantile: float = 0.001):
     """
     pts = data.scene_points()
     if len(pts) < 2:
-        raise ValueError("measurements: no visible depth and no spots: cannot bound the scene")
+        raise UnconstrainedMeasurementsError("measurements: no visible depth and no spots: cannot bound the scene "
+                                             "(expected at least two measured points)")
     lo = np.quantile(pts, quantile, axis=0) - margin_m
     hi = np.quantile(pts, 1.0 - quantile, axis=0) + margin_m
     must = np.concatenate([pts[-len(data.spot_points):], data.sensor_origin.cpu().numpy()[None]], 0)
@@ -61,36 +63,45 @@ def _accumulate(box: GridBox, origins, dirs, near, far, step, counts, chunk_samp
         counts += torch.bincount(flat[keep], minlength=counts.numel())
 
 
-def _depth_normals(x: np.ndarray, valid: np.ndarray, c: np.ndarray, max_jump: np.ndarray, span: int = 2):
+def _depth_normals(x: np.ndarray, valid: np.ndarray, c: np.ndarray, max_jump: np.ndarray, tol: float,
+                   span: int = 2):
     """Unit normals (H, W, 3) of the visible surface, facing the sensor, from the point image x (H, W, 3).
 
-    Tangents are differences over `span` pixels, one-sided towards the neighbour closer in range (so a
-    depth edge does not tilt the normal); where both sides jump by more than `max_jump` (a part about a
-    pixel wide) the normal faces the sensor. NaN where the pixel is not valid.
+    Four candidate tangent pairs per pixel (forward or backward differences over `span` pixels along
+    rows and columns, steps longer than `max_jump` per pixel left out); the candidate whose plane holds
+    the most points of the (2 span + 1)^2 neighbourhood within `tol` wins. Taking the side nearer in
+    range instead tilted the normal wherever the nearer neighbour lay on another surface (a seat seen
+    at a grazing angle next to the chair's back: its planes disagreed by centimetres). Where no
+    candidate exists (a part about a pixel wide) the normal faces the sensor. NaN where not valid.
     """
+    h, w = valid.shape
     xp = np.pad(np.where(valid[..., None], x, np.nan), ((span, span), (span, span), (0, 0)),
                 constant_values=np.nan)
-    h, w = valid.shape
+    jump_ok = lambda t: np.nan_to_num(np.linalg.norm(t, axis=-1), nan=np.inf) <= span * max_jump  # noqa: E731
 
-    def tangent(di, dj):
-        fwd = xp[span + di:span + di + h, span + dj:span + dj + w] - x
-        bwd = x - xp[span - di:span - di + h, span - dj:span - dj + w]
-        lf = np.nan_to_num(np.linalg.norm(fwd, axis=-1), nan=np.inf)
-        lb = np.nan_to_num(np.linalg.norm(bwd, axis=-1), nan=np.inf)
-        t = np.where((lf <= lb)[..., None], fwd, bwd)
-        return np.nan_to_num(t), np.minimum(lf, lb) <= span * max_jump
+    def shifted(di, dj):
+        return xp[span + di:span + di + h, span + dj:span + dj + w]
 
-    tu, gu = tangent(0, span)
-    tv, gv = tangent(span, 0)
-    n = np.cross(tu, tv)
-    nn = np.linalg.norm(n, axis=-1, keepdims=True)
+    tangents_u = [shifted(0, span) - x, x - shifted(0, -span)]
+    tangents_v = [shifted(span, 0) - x, x - shifted(-span, 0)]
+    neigh = [shifted(di, dj) - x for di in range(-span, span + 1) for dj in range(-span, span + 1) if di or dj]
     view = c - x
     view /= np.maximum(np.linalg.norm(view, axis=-1, keepdims=True), 1e-12)
-    ok = gu & gv & (nn[..., 0] > 1e-12)
-    n = np.where(ok[..., None], n / np.maximum(nn, 1e-12), view)
-    n *= np.sign((n * view).sum(-1, keepdims=True) + 1e-12)
-    n[~valid] = np.nan
-    return n
+    best_n = view.copy()
+    best_support = np.full((h, w), -1.0)
+    for tu in tangents_u:
+        for tv in tangents_v:
+            n = np.cross(np.nan_to_num(tu), np.nan_to_num(tv))
+            nn = np.linalg.norm(n, axis=-1, keepdims=True)
+            ok = jump_ok(tu) & jump_ok(tv) & (nn[..., 0] > 1e-12)
+            n = n / np.maximum(nn, 1e-12)
+            support = sum(np.nan_to_num(np.abs((q * n).sum(-1)), nan=np.inf) <= tol for q in neigh)
+            better = ok & (support > best_support)
+            best_n = np.where(better[..., None], n, best_n)
+            best_support = np.where(better, support, best_support)
+    best_n *= np.sign((best_n * view).sum(-1, keepdims=True) + 1e-12)
+    best_n[~valid] = np.nan
+    return best_n
 
 
 def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: float = 2.0, k: int = 4):
@@ -107,8 +118,9 @@ def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: floa
     valid = np.isfinite(d)
     x = c + dirs * np.where(valid, d, 0.0)[..., None]
     pix_angle = float(np.arccos(np.clip((dirs[0, 0] * dirs[0, 1]).sum(), -1, 1))) if w > 1 else 1e-3
-    max_jump = 3.0 * pix_angle * np.where(valid, d, 0.0)[..., None][..., 0] + 0.5 * box.voxel
-    normals = _depth_normals(x, valid, c, max_jump)
+    # steps up to 8 pixel footprints (a surface at 7 degrees grazing); the plane support test picks the side
+    max_jump = 8.0 * pix_angle * np.where(valid, d, 0.0) + box.voxel
+    normals = _depth_normals(x, valid, c, max_jump, tol=0.25 * box.voxel)
     pts, nrm = x[valid], normals[valid]
     sd = np.full(box.shape, np.nan, np.float32)
     if len(pts) == 0:
@@ -151,17 +163,58 @@ def surface_offset(density_scale: float, voxel: float, slope: float) -> float:
 def _segment_counts(data: RayData, box: GridBox, mask, off, step, core):
     """Per-voxel count of marching samples of the secondary segments x -> l of the pairs in `mask`."""
     counts = torch.zeros(int(np.prod(box.shape)), dtype=torch.long, device=data.pixel_dirs.device)
+    _accumulate(box, *_segments(data, mask, off), step, counts, core=core)
+    return counts
+
+
+def _segments(data: RayData, mask, off):
+    """Secondary segments x -> l of the pairs in `mask` (finite visible depth, longer than 2 `off`):
+    origins, unit directions, near, far."""
     pairs = torch.nonzero(mask & torch.isfinite(data.visible_depth[data.pair_pixel]), as_tuple=False).squeeze(1)
-    if pairs.numel() == 0:
-        return counts
     px = data.pair_pixel[pairs]
     x = data.sensor_origin + data.pixel_dirs[px] * data.visible_depth[px, None]
     v = data.spot_points[data.pair_spot[pairs]] - x
     length = torch.linalg.vector_norm(v, dim=-1)
     good = length > 2 * off
-    u = v[good] / length[good, None]
-    _accumulate(box, x[good], u, torch.full_like(length[good], off), length[good] - off, step, counts, core=core)
-    return counts
+    return x[good], v[good] / length[good, None], torch.full_like(length[good], off), length[good] - off
+
+
+#: evidence label of a carved voxel put back because a shadowed segment needs a blocker there
+RESTORED = 4
+
+
+def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count, origins, dirs, near, far, step,
+                    restorable=(3,), chunk_samples: int = 1 << 22) -> int:
+    """Make every shadowed segment blocked (in place on the flat `label`): a shadowed segment whose voxels
+    were all carved free gets back the carved voxel along it with the most shadowed and fewest free
+    crossings (shadow / (lit + 1)). Carving through whole voxels takes thin parts
+    (a chair leg about one voxel wide) with it wherever a lit ray grazes their voxel; the shadows the part
+    casts cross it and put it back. Returns the number of voxels restored."""
+    if origins.shape[0] == 0:
+        return 0
+    nx, ny, nz = box.shape
+    n_per = max(1, int(float((far - near).clamp(min=0).max()) / step) + 1)
+    rays = max(1, chunk_samples // n_per)
+    score = shadow_count.float() / (free_count.float() + 1.0)
+    can = torch.zeros(8, dtype=torch.bool, device=label.device)
+    can[list(restorable)] = True
+    picked = []
+    for i in range(0, origins.shape[0], rays):
+        t0, t1 = marching_intervals(near[i:i + rays], far[i:i + rays], step)
+        pts = origins[i:i + rays, None] + dirs[i:i + rays, None] * (0.5 * (t0 + t1))[..., None]
+        idx, inside = box.cell_index(pts)
+        keep = inside & (t1 > t0)
+        flat = (idx[..., 0] * ny + idx[..., 1]) * nz + idx[..., 2]
+        lab = label[flat]
+        blocked = (keep & (lab != 2) & (lab != 3)).any(1)
+        cand = keep & can[lab.long()] & ~blocked[:, None]
+        sc = torch.where(cand, score[flat], torch.full_like(flat, -1, dtype=score.dtype))
+        best, j = sc.max(1)
+        ok = best >= 0
+        picked.append(flat[ok].gather(1, j[ok, None]).squeeze(1))
+    picked = torch.unique(torch.cat(picked))
+    label[picked] = RESTORED
+    return int(picked.numel())
 
 
 def _pixel_stride(data: RayData, voxel: float, spacing_voxels: float = 1.0) -> int:
@@ -178,8 +231,10 @@ def _pixel_stride(data: RayData, voxel: float, spacing_voxels: float = 1.0) -> i
 
 def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.0, carve_min_lit: int = 1,
                   secondary_offset_m: float = 0.0, step_voxels: float = 0.5, carve_core: float = 0.5,
-                  count_shadow: bool = False, carve_spacing_voxels: float = 1.0):
-    """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden; and the count
+                  count_shadow: bool = False, carve_spacing_voxels: float = 1.0, explain_shadow_rays: bool = False,
+                  explain_camera_free: bool = False):
+    """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
+    blocker of a shadowed segment (with `explain_shadow_rays`); and the count
     of shadowed secondary segments through each voxel (with `count_shadow`)."""
     dev = data.pixel_dirs.device
     n = int(np.prod(box.shape))
@@ -209,12 +264,19 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     on_sub[sub] = True
     off = max(secondary_offset_m, surface_margin_voxels * box.voxel)
     lit_count = _segment_counts(data, box, data.lit & on_sub[data.pair_pixel], off, step, carve_core)
+    consistent = explain_shadow_rays and bool(data.shadowed.any())
     shadow_count = (_segment_counts(data, box, data.shadowed & on_sub[data.pair_pixel], off, step, 0.5)
-                    if count_shadow else torch.zeros_like(lit_count))
+                    if count_shadow or consistent else torch.zeros_like(lit_count))
     label = torch.zeros(n, dtype=torch.int8, device=dev)
     label[lit_count >= max(1, carve_min_lit)] = 3
     label[cam_free > 0] = 2
     label[surface > 0] = 1
+    if consistent:
+        seg = _segments(data, data.shadowed & on_sub[data.pair_pixel], off)
+        if explain_camera_free:     # a part thinner than a pixel: the pixel ray saw past it
+            explain_shadows(box, label, lit_count + cam_free, shadow_count, *seg, step, restorable=(2, 3))
+        else:
+            explain_shadows(box, label, lit_count, shadow_count, *seg, step)
     return label.reshape(box.shape), shadow_count.reshape(box.shape)
 
 
@@ -248,7 +310,8 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     ramp linear); behind a visible surface a lit voxel stays free (thin parts keep their thickness).
     """
     label, _ = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m,
-                             cfg.step_voxels, cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels)
+                             cfg.step_voxels, cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
+                             explain_shadow_rays=cfg.explain_shadows, explain_camera_free=cfg.explain_camera_free)
     free = (label == 2) | (label == 3)
     dev = data.pixel_dirs.device
     occupied = ~free if view is None else ~free & view
@@ -257,6 +320,6 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
         sd = surface_signed_distance(data, box, cfg.surface_half_width_voxels).to(dev)
         b = surface_offset(cfg.density_scale, box.voxel, cfg.surface_slope)
         ramp = (cfg.surface_slope * sd / box.voxel + b).clamp(cfg.raw_free, cfg.raw_occupied)
-        near = torch.isfinite(sd) & ((label != 3) | (sd <= 0.5 * box.voxel))
+        near = torch.isfinite(sd) & ((label != 3) | (sd <= 0.5 * box.voxel)) & (label != RESTORED)
         raw = torch.where(near, ramp, raw)
     return DensityGrid.from_xyz(box, raw.float(), cfg.density_scale), free

@@ -60,19 +60,19 @@ class PlatoNeRFModel:
         return False
 
     @staticmethod
-    def weight_grad_norm(field) -> float:
-        """L2 norm of the gradient of a network's layer weights (biases excluded, as theirs)."""
+    def weight_grad_norm(field) -> torch.Tensor:
+        """L2 norm of the gradient of a network's layer weights (biases excluded, as theirs), on the device."""
         sq = [p.grad.pow(2).sum() for n, p in field.named_parameters() if n.endswith("weight") and p.grad is not None]
-        return float(torch.stack(sq).sum().sqrt()) if sq else 0.0
+        return torch.stack(sq).sum().sqrt() if sq else torch.zeros((), device=field.centre.device)
 
     def dead(self) -> bool:
         """A network whose weights got an exactly zero gradient: theirs watches the coarse one only;
         'both' also catches a dead fine network (6 of 20 seeds on the test scene), which would
-        otherwise leave the output field empty for good."""
+        otherwise leave the output field empty for good. One device sync per step."""
         if self.pc.reinit_dead == "off":
             return False
         nets = (self.coarse,) if self.pc.reinit_dead == "coarse" else (self.coarse, self.fine)
-        return any(self.weight_grad_norm(n) == 0.0 for n in nets)
+        return bool((torch.stack([self.weight_grad_norm(n) for n in nets]) == 0).any())
 
     def after_step(self, step: int) -> bool:
         """The authors' re-initialisation; True when it fired. `step` counts the steps done."""
@@ -111,13 +111,13 @@ class PlatoNeRFModel:
         warm = in_warmup(step, total, lc)
         near, far = self._camera_bounds(c, u, self.pc.near_m)
         fine, coarse = self._render(c, u, near, far, train=True)
-        terms, stats = [], {"dist": 0.0, "shadow": 0.0}
+        terms, dists, shadows = [], [], []
         for depth in (fine.depth, coarse.depth):
             x = c + u * depth[:, None]
             v = l - x
             length = torch.linalg.vector_norm(v, dim=-1)
             dist = distance_loss(depth + length + data.laser_to_spot[sp], data.path[idx], lit, lc)
-            stats["dist"] += float(dist.detach())
+            dists.append(dist.detach())
             if warm:
                 terms.append(dist)          # the warm-up loss is the plain MSE (no distance weight)
                 continue
@@ -125,8 +125,10 @@ class PlatoNeRFModel:
             s_far = torch.maximum(length, s_near)   # theirs would sample backwards on shorter segments
             f2, c2 = self._render(x, v / length.clamp(min=1e-6)[:, None], s_near, s_far, train=True)
             shadow = shadow_loss(f2.transmittance, lit, shadowed, lc) + shadow_loss(c2.transmittance, lit, shadowed, lc)
-            stats["shadow"] += float(shadow.detach())
+            shadows.append(shadow.detach())
             terms.append(lc.distance_weight * dist + shadow)
+        d, sh = torch.stack(dists).sum(), (torch.stack(shadows).sum() if shadows else torch.zeros_like(dists[0]))
+        stats = dict(zip(("dist", "shadow"), torch.stack([d, sh]).tolist()))    # one device sync, not four
         return lc.loss_scale * (terms[0] + terms[1]), stats
 
     @torch.no_grad()
@@ -155,7 +157,8 @@ class PlatoNeRFModel:
         return op.reshape(box.shape).cpu().numpy(), box.bbox_min.cpu().numpy(), box.bbox_max.cpu().numpy()
 
     def params_finite(self) -> bool:
-        return all(bool(torch.isfinite(p).all()) for p in list(self.coarse.parameters()) + list(self.fine.parameters()))
+        ps = list(self.coarse.parameters()) + list(self.fine.parameters())
+        return bool(torch.stack([torch.isfinite(p).all() for p in ps]).all())      # one device sync
 
     def state_dict(self):
         clone = lambda sd: {k: v.detach().clone() for k, v in sd.items()}  # noqa: E731

@@ -1,0 +1,61 @@
+"""The fast mode's closed-form start: shadow-consistent carving and visible-surface normals."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from torch_recon.recon.fields import GridBox  # noqa: E402
+from torch_recon.recon.init import RESTORED, _depth_normals, explain_shadows  # noqa: E402
+
+
+def _segment(a, b):
+    a, b = torch.tensor([a], dtype=torch.float32), torch.tensor([b], dtype=torch.float32)
+    v = b - a
+    length = torch.linalg.vector_norm(v, dim=-1)
+    return a, v / length[:, None], torch.zeros(1), length
+
+
+def test_a_shadowed_segment_through_carved_space_gets_its_blocker_back():
+    box = GridBox([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], 10)
+    n = int(np.prod(box.shape))
+    label = torch.full((n,), 3, dtype=torch.int8)          # everything carved by lit rays
+    lit = torch.full((n,), 50)
+    shadow = torch.zeros(n, dtype=torch.long)
+    pole = (5 * 10 + 5) * 10 + 5                           # voxel (5, 5, 5): a thin pole's voxel
+    lit[pole], shadow[pole] = 3, 40                        # grazed by few lit rays, crossed by many shadows
+    shadow[(5 * 10 + 2) * 10 + 5] = 40                     # as shadowed elsewhere but well lit: stays free
+    restored = explain_shadows(box, label, lit, shadow, *_segment([0.05, 0.55, 0.55], [0.95, 0.55, 0.55]),
+                               step=0.05)
+    assert restored == 1 and int(label[pole]) == RESTORED
+    assert int((label == RESTORED).sum()) == 1
+    # a second shadowed segment through the restored voxel is already explained: nothing more changes
+    assert explain_shadows(box, label, lit, shadow, *_segment([0.55, 0.05, 0.55], [0.55, 0.95, 0.55]),
+                           step=0.05) == 0
+
+
+def test_a_shadowed_segment_blocked_by_unknown_space_changes_nothing():
+    box = GridBox([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], 10)
+    n = int(np.prod(box.shape))
+    label = torch.full((n,), 3, dtype=torch.int8)
+    label[(7 * 10 + 5) * 10 + 5] = 0                       # hidden, never carved: already a blocker
+    before = label.clone()
+    assert explain_shadows(box, label, torch.ones(n), torch.ones(n), *_segment([0.05, 0.55, 0.55],
+                                                                               [0.95, 0.55, 0.55]), step=0.05) == 0
+    assert torch.equal(label, before)
+
+
+def test_normals_of_a_surface_seen_at_a_grazing_angle_next_to_another_surface():
+    """A seat seen at 15 degrees with a wall rising right behind it (the nearer neighbour two rows up is on
+    the wall): the seat's normals are vertical, the wall's horizontal."""
+    h, w = 12, 8
+    x = np.zeros((h, w, 3))
+    for i in range(h):                                     # rows 0-3: wall (y = 3.2), rows 4-11: seat (z = -1)
+        for j in range(w):
+            x[i, j] = [0.05 * j, 3.2, -0.6 - 0.1 * i] if i < 4 else [0.05 * j, 3.2 - 0.1 * (i - 3), -1.0]
+    valid = np.ones((h, w), bool)
+    n = _depth_normals(x, valid, np.array([0.0, 0.0, 0.0]), np.full((h, w), 0.2), tol=0.01)
+    assert np.all(np.abs(n[5:, 2:-2, 2]) > 0.99), n[5:, 2:-2]
+    assert np.all(np.abs(n[:3, 2:-2, 1]) > 0.99), n[:3, 2:-2]
