@@ -43,6 +43,30 @@ def resolve_path(raw: str, what: str, context=None) -> str:
     return os.path.normpath(bpy.path.abspath(raw))
 
 
+def reconstruction_python(context) -> tuple[str, list]:
+    """(python, PYTHONPATH entries) of the reconstruction Python from the preferences, checked to import torch_recon."""
+    from .. import _project, jobs
+
+    prefs = get_preferences(context)
+    if prefs is None:
+        raise UserError("Add-on preferences unavailable: enable the add-on in Preferences > Add-ons")
+    python = bpy.path.abspath(prefs.python_path) if prefs.python_path else ""
+    paths = _project.reconstruction_pythonpath(prefs.project_dir)
+    ok, msg = jobs.check_reconstruction_python(python, paths)
+    if not ok:
+        raise UserError(msg)
+    return python, paths
+
+
+def dataset_dir(context, hint: str = "") -> str:
+    """The panel's dataset folder (Reconstruct's, else the simulation output), checked to hold dataset.json."""
+    s = context.scene.platolidar
+    dataset = resolve_path(s.recon_dataset_dir or s.output_dir, "dataset folder", context)
+    if not os.path.isfile(os.path.join(dataset, "dataset.json")):
+        raise UserError(f"'{dataset}' is not a dataset (no dataset.json){hint}")
+    return dataset
+
+
 def validated_config(context, op=None):
     """The scene's settings as a SimulationConfig, checked for a simulation; stored in the .blend.
 

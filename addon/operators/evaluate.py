@@ -9,9 +9,8 @@ import os
 
 import bpy
 
-from .. import _project, jobs
-from ..preferences import get_preferences
-from ._common import UserError, has_settings, resolve_path
+from .. import jobs
+from ._common import UserError, dataset_dir, has_settings, reconstruction_python, resolve_path
 from ._job_base import JobOperatorMixin
 
 #: (report.json key, label, format) shown in the panel
@@ -44,20 +43,11 @@ class PLATOLIDAR_OT_evaluate(JobOperatorMixin, bpy.types.Operator):
 
     def build_job(self, context):
         s = context.scene.platolidar
-        prefs = get_preferences(context)
-        if prefs is None:
-            raise UserError("Add-on preferences unavailable: enable the add-on in Preferences > Add-ons")
-        python = bpy.path.abspath(prefs.python_path) if prefs.python_path else ""
-        paths = _project.reconstruction_pythonpath(prefs.project_dir)
-        ok, msg = jobs.check_reconstruction_python(python, paths)
-        if not ok:
-            raise UserError(msg)
+        python, paths = reconstruction_python(context)
         mesh = resolve_path(s.import_path, "reconstructed mesh (Import > Mesh)", context)
         if not os.path.isfile(mesh):
             raise UserError(f"Mesh '{mesh}' does not exist: reconstruct first or pick the file under Import")
-        dataset = resolve_path(s.recon_dataset_dir or s.output_dir, "dataset folder", context)
-        if not os.path.isfile(os.path.join(dataset, "dataset.json")):
-            raise UserError(f"'{dataset}' is not a dataset (no dataset.json)")
+        dataset = dataset_dir(context)
         self._out_dir = os.path.join(os.path.dirname(mesh), "eval")
         return jobs.Job("evaluation", jobs.evaluate_command(python, mesh, dataset, self._out_dir),
                         env=jobs.python_env(paths))

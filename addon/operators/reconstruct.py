@@ -5,9 +5,8 @@ import os
 
 import bpy
 
-from .. import _project, jobs
-from ..preferences import get_preferences
-from ._common import UserError, has_settings, resolve_path
+from .. import jobs
+from ._common import UserError, dataset_dir, has_settings, reconstruction_python, resolve_path
 from ._job_base import JobOperatorMixin
 
 MESH_EXTENSIONS = (".ply", ".obj", ".glb")  # preference order when written together
@@ -53,17 +52,8 @@ class PLATOLIDAR_OT_reconstruct(JobOperatorMixin, bpy.types.Operator):
 
     def build_job(self, context):
         s = context.scene.platolidar
-        prefs = get_preferences(context)
-        if prefs is None:
-            raise UserError("Add-on preferences unavailable: enable the add-on in Preferences > Add-ons")
-        python = bpy.path.abspath(prefs.python_path) if prefs.python_path else ""
-        paths = _project.reconstruction_pythonpath(prefs.project_dir)
-        ok, msg = jobs.check_reconstruction_python(python, paths)
-        if not ok:
-            raise UserError(msg)
-        dataset = resolve_path(s.recon_dataset_dir or s.output_dir, "dataset folder", context)
-        if not os.path.isfile(os.path.join(dataset, "dataset.json")):
-            raise UserError(f"'{dataset}' is not a dataset (no dataset.json): simulate first or pick the folder")
+        python, paths = reconstruction_python(context)
+        dataset = dataset_dir(context, ": simulate first or pick the folder")
         out_dir = resolve_path(s.recon_out_dir, "reconstruction output folder", context)
         self._out_dir = out_dir
         fit_budget = {"steps": s.recon_steps} if s.recon_budget == "STEPS" else {"max_seconds": s.recon_max_seconds}
