@@ -69,6 +69,9 @@ def test_summary_has_the_time_breakdown(evaluated):
     assert rows["fit: optimisation (200 steps, steps)"] == 10.0
     assert rows["fit: volume + mesh export"] == pytest.approx(3.5)
     assert rows["evaluation"] == r["eval_seconds"] > 0
+    stages = r["stage_seconds"]     # the slow stages after the view renders are announced and timed
+    assert {"surface metrics", "summary pictures"} <= set(stages) and any(k.startswith("object metrics") for k in stages)
+    assert all(v >= 0 for v in stages.values())
     html = (out / "summary.html").read_text()
     assert "<h2>Time</h2>" in html and "volume + mesh export" in html
 

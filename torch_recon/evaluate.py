@@ -295,6 +295,29 @@ def _valid_test_views(dataset, gt_mesh, settings, report):
     return views, cams, gt
 
 
+class _StageLog:
+    """Announces each evaluation stage after the view renders (object metrics and pictures take minutes on
+    large meshes) and keeps its seconds for the report's time breakdown."""
+
+    def __init__(self, progress: bool):
+        self.progress, self.seconds, self._name, self._t = progress, {}, None, 0.0
+
+    def start(self, name: str):
+        self.stop()
+        self._name, self._t = name, time.perf_counter()
+        if self.progress:
+            from tqdm import tqdm
+            tqdm.write(f"evaluate: {name} ...")
+
+    def stop(self):
+        if self._name is not None:
+            self.seconds[self._name] = round(time.perf_counter() - self._t, 3)
+            if self.progress:
+                from tqdm import tqdm
+                tqdm.write(f"evaluate: {self._name} done in {self.seconds[self._name]:.1f} s")
+        self._name = None
+
+
 def evaluate(dataset, out_dir, mesh=None, density=None, bbox_min=None, bbox_max=None, density_mesh_level=None,
              settings: EvalSettings | None = None, device="cpu", progress=False, extra=None) -> dict:
     """Evaluate a reconstruction (a world-frame trimesh mesh, or a density callable + bbox) on a dataset.
@@ -344,6 +367,7 @@ def evaluate(dataset, out_dir, mesh=None, density=None, bbox_min=None, bbox_max=
                                   settings.error_vmax_m)
         np.savez_compressed(out_dir / "test_depths.npz", pred=preds, gt=gt)
     rec = None
+    stages = _StageLog(progress)
     if gt_mesh is None:
         report.update({"chamfer_m": None, "fscore": None, "surface_note": "dataset has no ground-truth mesh"})
     else:
@@ -354,6 +378,7 @@ def evaluate(dataset, out_dir, mesh=None, density=None, bbox_min=None, bbox_max=
             report.update({"chamfer_m": None, "fscore": None,
                            "surface_note": "density without density_mesh_level: no surface metrics"})
         else:
+            stages.start("surface metrics")
             report.update(surface_metrics(rec, gt_mesh, settings.fscore_threshold_m, settings.n_surface_samples,
                                           settings.seed, settings.crop_min, settings.crop_max))
     if extra:
@@ -363,13 +388,17 @@ def evaluate(dataset, out_dir, mesh=None, density=None, bbox_min=None, bbox_max=
         from .evaluation.report import load_gt_objects, write_summary
         objects, report["objects_source"] = load_gt_objects(dataset, gt_mesh)
         if settings.objects:
+            stages.start(f"object metrics ({len(objects)} labelled objects)")
             report["object_metrics"] = object_surface_metrics(rec, gt_mesh, objects, dataset.manifest.sensor,
                                                               ObjectMetricSettings(**{"seed": settings.seed,
                                                                  **(settings.object_metric_settings or {})}))
         if settings.pictures:
+            stages.start("summary pictures")
             report["pictures"] = write_summary(out_dir, report, gt_mesh, rec, objects,
                                                dataset.manifest.sensor.camera_to_world, preds, gt,
                                                size=settings.picture_size)
+    stages.stop()
+    report["stage_seconds"] = stages.seconds
     report["eval_seconds"] = round(time.perf_counter() - t0, 3)
     tmp = out_dir / ".report.json.partial"
     tmp.write_text(json.dumps(report, indent=1))
