@@ -7,7 +7,7 @@ import pytest
 
 from torch_recon.contract.errors import SettingsError
 from torch_recon.contract.frames import focal_length_px
-from torch_recon.contract.procedural import (ProceduralSettings, bins_needed, procedural_scene, procedural_scenes,
+from torch_recon.contract.procedural import (GAP_M, ProceduralSettings, bins_needed, procedural_scene, procedural_scenes,
                                              scene_caster, settings_from_dict)
 
 N_SCENES = 12
@@ -49,11 +49,23 @@ def test_scenes_differ_and_vary(scenes):
     assert len(kinds) >= 4
 
 
+def test_object_count_is_drawn_over_the_whole_range(scenes):
+    counts = {len(ex.objects) for ex in scenes}
+    s = ProceduralSettings()
+    assert counts == set(range(s.min_objects, s.max_objects + 1)), counts
+
+
 def test_objects_inside_room_and_in_view(scenes):
     for ex in scenes:
         lo, hi = _room_box(ex)
-        assert 1 <= len(ex.objects) <= ProceduralSettings().max_objects, ex.name
+        assert len(ex.objects) >= 1, f"{ex.name}: placement dropped every object"
+        assert f"{len(ex.objects)} object(s)" in ex.description, ex.name
         by_name = {p.name: p for p in ex.parts}
+        boxes = [np.concatenate([by_name[n].vertices for n in names]) for names in ex.objects.values()]
+        for i in range(len(boxes)):            # footprints are disjoint discs GAP_M apart: so are any two points
+            for j in range(i):
+                gap = np.linalg.norm(boxes[i][:, None, :2] - boxes[j][None, :, :2], axis=-1).min()
+                assert gap >= GAP_M - 1e-6, f"{ex.name}: objects {i} and {j} are {gap:.3f} m apart"
         for label, names in ex.objects.items():
             v = np.concatenate([by_name[n].vertices for n in names])
             assert np.all(v >= lo - 1e-6) and np.all(v <= hi + 1e-6), f"{ex.name}: {label} leaves the room"
