@@ -63,6 +63,11 @@ class FastConfig:
     occupancy_update_every: int = 25  # steps between occupancy refreshes
     step_voxels: float = 0.5          # ray marching step in voxels
     secondary_offset_voxels: float = 1.5  # secondary rays x -> l skip this much next to x and l
+    freeze_measured: bool = True      # the optimiser changes only voxels no direct measurement fixed (hidden hull,
+                                      # restored blockers, outside the view); the visible-surface ramp and known
+                                      # free space keep their closed-form values (training tore holes in walls)
+    anchor_weight: float = 0.0        # sum of squared raw change on those measured voxels, times this
+    freeze_dilate_voxels: int = 1     # the frozen surface band reaches this many voxels beyond the ramp
     tv_weight: float = 1e-4           # total-variation smoothness on the raw density
     lr: float = 0.05                  # Adam on raw density; with the ramp at 4 per voxel the surface moves
                                       # at most lr / 4 voxel a step (0.2 with the old slope 16, same motion).

@@ -26,10 +26,10 @@ def pair_loss(model, data: RayData, idx, step: int, total: int, cfg: FitConfig, 
     dirs = data.pixel_dirs[px]
     c = data.sensor_origin.expand_as(dirs)
     l = data.spot_points[sp]
-    warm = in_warmup(step, total, cfg.loss)
+    warm = in_warmup(step, total, cfg.loss) and not getattr(model, "skip_warmup", False)
     loss = dirs.new_zeros(())
     stats = {"dist": 0.0, "shadow": 0.0}
-    for depth in model.camera_depths(c, dirs):
+    for depth in model.camera_depths(c, dirs, px):
         x = c + dirs * depth[:, None]
         o, u, near, far, _, length = secondary_rays(x, l, offset)
         dist = distance_loss(predicted_path(depth, length, data.laser_to_spot[sp]), data.path[idx],
@@ -57,6 +57,7 @@ class FastModel:
         self.bbox = (lo, hi)
         self.level = 0 if self.fc.coarse_fraction > 0 and self.fc.coarse_resolution < self.fc.resolution else 1
         self.grid, self.free = self._initial(self.fc.coarse_resolution if self.level == 0 else self.fc.resolution)
+        self.trainable = self._trainable(self.grid.raw)
         self.occupancy = None
         self.refresh_occupancy()
         self.make_optimizer()
@@ -64,6 +65,35 @@ class FastModel:
     def _initial(self, res):
         box = GridBox(self.bbox[0], self.bbox[1], res).to(self.device)
         return initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box))
+
+    @property
+    def skip_warmup(self) -> bool:
+        """With the sensor-measured voxels frozen the distance loss has nothing left to move (camera rays
+        stop in the frozen surface band), so its warm-up would be idle steps."""
+        return self.fc.freeze_measured
+
+    def _trainable(self, raw):
+        """Voxels (raw layout (1, 1, nz, ny, nx), bool) the optimiser may change, or None (all).
+
+        Frozen with `fast.freeze_measured`: what the sensor measured directly (known free space: seen
+        through by the sensor or crossed by a lit secondary ray; and the visible-surface ramp, dilated by
+        `fast.freeze_dilate_voxels` so the occupied voxel behind the surface that the marching-cubes
+        crossing interpolates to stays too). Left to the shadow loss: the hidden hull, the restored
+        blockers and the unmeasured space outside the view."""
+        if not (self.fc.freeze_measured or self.fc.anchor_weight > 0):
+            return None
+        self.raw_start = raw.detach().clone()
+        with torch.no_grad():
+            ramp = (raw > self.fc.raw_free + 1e-3) & (raw < self.fc.raw_occupied - 1e-3)
+            k = 2 * int(self.fc.freeze_dilate_voxels) + 1
+            if k > 1:
+                ramp = F.max_pool3d(ramp.float(), k, 1, k // 2) > 0
+            free = self.free.permute(2, 1, 0)[None, None].to(raw.device)
+            return ~(ramp | free)
+
+    def fixed_depth(self, px):
+        """The visible depth of pixels `px` where the surface band is frozen (NaN where unknown)."""
+        return self.data.visible_depth[px] if self.fc.freeze_measured else None
 
     def _view(self, box):
         return in_view(self.data, box, self.meta["camera_to_world"], self.meta["fov_rad"], self.meta["fov_axis"])
@@ -87,6 +117,9 @@ class FastModel:
 
     def make_optimizer(self):
         self.optimizer = torch.optim.Adam(self.grid.parameters(), lr=self.fc.lr)
+        if self.trainable is not None and self.fc.freeze_measured:  # zero gradient: Adam never moves it
+            mask = self.trainable.to(self.grid.raw.dtype)
+            self.grid.raw.register_hook(lambda g: g * mask)
 
     def refresh_occupancy(self):
         with torch.no_grad():
@@ -104,6 +137,9 @@ class FastModel:
         if self.level == 0 and step >= int(self.fc.coarse_fraction * total):
             self.grid = self.grid.upsampled(self.fc.resolution)
             self.level = 1
+            if self.fc.freeze_measured:     # the mask of the fine level: from its own start field
+                start, self.free = self._initial(self.fc.resolution)
+                self.trainable = self._trainable(start.raw)
             self.refresh_occupancy()
             self.make_optimizer()
             return True
@@ -111,10 +147,14 @@ class FastModel:
             self.refresh_occupancy()
         return False
 
-    def camera_depths(self, c, dirs):
+    def camera_depths(self, c, dirs, px=None):
+        fixed = self.fixed_depth(px) if px is not None else None
+        if fixed is not None and bool(torch.isfinite(fixed).all()):
+            return [fixed]          # frozen surface band: the rendering would return the start's depth
         near, far = ray_box(c, dirs, self.grid.box.bbox_min, self.grid.box.bbox_max)
-        return [render_pruned(self.grid, self.occupancy, c, dirs, near, torch.maximum(far, near),
-                              self.step_len, self.tau_step).depth]
+        depth = render_pruned(self.grid, self.occupancy, c, dirs, near, torch.maximum(far, near),
+                              self.step_len, self.tau_step).depth
+        return [depth if fixed is None else torch.where(torch.isfinite(fixed), fixed, depth)]
 
     def segment_transmittances(self, o, u, near, far):
         return [render_pruned(self.grid, self.occupancy, o, u, near, far, self.step_len, self.tau_step).transmittance]
@@ -125,6 +165,9 @@ class FastModel:
             r = self.grid.raw
             tv = sum(((r.diff(dim=d)) ** 2).mean() for d in (2, 3, 4))
             loss = loss + self.fc.tv_weight * tv
+        if self.fc.anchor_weight > 0 and self.trainable is not None:
+            dev = (self.grid.raw - self.raw_start) * ~self.trainable
+            loss = loss + self.fc.anchor_weight * (dev * dev).sum()
         return loss, stats
 
     @torch.no_grad()
@@ -171,7 +214,7 @@ class FastModel:
         return {"level": self.level, "raw": self.grid.raw.detach().clone(),
                 "bbox_min": self.grid.box.bbox_min.cpu(), "voxel": self.grid.box.voxel,
                 "shape": list(self.grid.box.shape), "free": self.free.clone(),
-                "occupancy": self.occupancy.clone(), "tau_step": self.tau_step.clone(), "optimizer": self.optimizer.state_dict()}
+                "trainable": self.trainable, "occupancy": self.occupancy.clone(), "tau_step": self.tau_step.clone(), "optimizer": self.optimizer.state_dict()}
 
     def load_state_dict(self, st):
         self.level = int(st["level"])
@@ -179,6 +222,8 @@ class FastModel:
         self.grid = DensityGrid(box, self.fc.density_scale, st["raw"].to(self.device))
         if "free" in st:
             self.free = st["free"].to(self.device)
+        t = st.get("trainable")
+        self.trainable = None if t is None else t.to(self.device)
         self.occupancy = st["occupancy"].to(self.device)
         self.tau_step = st["tau_step"].to(self.device)
         self.make_optimizer()
