@@ -4,11 +4,13 @@ Evidence, voxel by voxel (priority top to bottom):
 1. the voxel holding a visible surface point x = c + d u (closed-form depth d): occupied;
 2. crossed by a camera ray before its visible surface: free;
 3. crossed by at least `carve_min_lit` lit secondary rays x -> l: free (shadow carving);
-4. otherwise (hidden from the sensor and never lit through): occupied, the shadow hull of BF Lidar.
+4. otherwise, inside the sensor's view (hidden from the sensor and never lit through): occupied, the
+   shadow hull of BF Lidar; outside the view (no measurement reaches it): the planes bounding the
+   observation continue there (`unobserved.py`).
 Near visible surfaces the raw density is a ramp in the point-to-plane signed distance to the measured
 surface (normals from the depth image), so planar walls start planar at sub-voxel accuracy.
 Which voxels are known free (2 and 3) is kept: the mesh exporter reports only surfaces that face
-measured free space (`free_evidence`); nothing is invented where nothing was measured.
+measured free space (`free_evidence`) or completed empty space next to a completed plane.
 """
 
 from __future__ import annotations
