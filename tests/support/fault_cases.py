@@ -15,371 +15,24 @@ operators). `prepare(ws, monkeypatch)` breaks an input or injects a fault first.
 or a real training run (pytest -m slow).
 """
 
+
 from __future__ import annotations
 
 import errno
-import json
-import os
 import sys
-from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from tests.support.fault_workspace import FIT_FAST, ROOT, SIGINT, SIGTERM, run_signalled
-
-
-@dataclass
-class Case:
-    name: str
-    run: object                 # ws -> ('recon' | 'sim', argv) or ('call', fn)
-    rc: int = 2
-    says: tuple = ()
-    prepare: object = None      # (ws, monkeypatch) -> None
-    after: object = None        # ws -> None (assertions); None: nothing changed
-    slow: bool = False
-
-
-def R(*args):
-    return lambda ws: ("recon", [a(ws) if callable(a) else a for a in args])
-
-
-def S(*args):
-    return lambda ws: ("sim", [a(ws) if callable(a) else a for a in args])
-
-
-def W(rel):
-    """A workspace path (not created)."""
-    return lambda ws: ws.root / rel
-
-
-DS = lambda ws: ws.ds              # noqa: E731
-NPZ = lambda ws: ws.npz            # noqa: E731
-MESH = lambda ws: ws.mesh          # noqa: E731
-FIT = lambda ws: ws.fit            # noqa: E731
-
-
-# ------------------------------------------------------------------------------------------ inputs broken on purpose
-
-def edit_manifest(fn):
-    def prep(ws, mp):
-        p = ws.ds / "dataset.json"
-        d = json.loads(p.read_text())
-        fn(d)
-        p.write_text(json.dumps(d))
-    return prep
-
-
-def set_key(path, value):
-    def fn(d):
-        node = d
-        keys = path.split(".")
-        for k in keys[:-1]:
-            node = node[k]
-        if value is DELETE:
-            del node[keys[-1]]
-        else:
-            node[keys[-1]] = value
-    return fn
-
-
-DELETE = object()
-
-
-def break_transient(how):
-    def prep(ws, mp):
-        from torch_recon.contract.dataset import Transient
-        from torch_recon.contract.dataset.store import write_transient_file
-        f = ws.ds / "transients" / "spot_0000.exr"
-        if how == "truncated":
-            f.write_bytes(f.read_bytes()[: f.stat().st_size // 3])
-        elif how == "nan":
-            win = np.ones((16, 16, 300), np.float32)
-            win[3, 3, 7] = np.nan
-            write_transient_file(f, Transient(np.zeros((16, 16), np.int64), win, 300))
-        elif how == "shape":
-            write_transient_file(f, Transient(np.zeros((8, 16), np.int64), np.ones((8, 16, 300), np.float32), 300))
-        elif how == "garbage":
-            f.write_text("not an EXR")
-    return prep
-
-
-def write_file(rel, content):
-    return lambda ws, mp: ws.write(rel, content)
-
-
-def npz_of(**arrays):
-    def prep(ws, mp):
-        np.savez(ws.p("odd.npz"), **arrays)
-    return prep
-
-
-def truncate(getter, frac=0.5):
-    def prep(ws, mp):
-        p = getter(ws)
-        p.write_bytes(p.read_bytes()[: int(p.stat().st_size * frac)])
-    return prep
-
-
-def fail_writes(err, inside):
-    """Every file opened for writing under the workspace path `inside` fails with `err` (a read-only
-    folder or a full disk, as the tests run as root where chmod cannot forbid writing)."""
-    def prep(ws, mp):
-        import builtins
-        import io
-
-        import numpy
-        target = str(ws.root / inside)
-        real_open, real_io_open, real_mkdir = builtins.open, io.open, Path.mkdir
-
-        def guard(path, mode="r", *a, **k):
-            if any(c in mode for c in "wax+") and str(Path(path).absolute()).startswith(target):
-                raise OSError(err, os.strerror(err), str(path))
-            return real_open(path, mode, *a, **k)
-
-        def mkdir(self, *a, **k):
-            if str(self.absolute()).startswith(target) and not self.exists():
-                raise OSError(err, os.strerror(err), str(self))
-            return real_mkdir(self, *a, **k)
-        mp.setattr(builtins, "open", guard)
-        mp.setattr(io, "open", guard)
-        mp.setattr(Path, "mkdir", mkdir)
-        del numpy
-    return prep
-
-
-def both(*preps):
-    def prep(ws, mp):
-        for p in preps:
-            p(ws, mp)
-    return prep
-
-
-# ------------------------------------------------------------------------------------------ checks of what is left
-
-def only_new(*names, allow_modified=()):
-    """Nothing lost, nothing modified (except allow_modified), every new file under one of `names`."""
-    def check(ws):
-        ch = ws.changed()
-        assert not ch["lost"], ch
-        assert set(ch["modified"]) <= set(allow_modified), ch
-        bad = [n for n in ch["new"] if not any(n == p or n.startswith(p + "/") for p in names)]
-        assert not bad, f"unexpected new files {bad}"
-        assert not ws.leftovers(), ws.leftovers()
-    return check
-
-
-def fit_unchanged_but_checkpoint(ws):
-    ch = ws.changed()
-    assert not ch["lost"] and set(ch["modified"]) <= {"fit/checkpoint.pt"}, ch
-    assert all(n.startswith(("fit/", "tmp/")) for n in ch["new"]) and not ws.leftovers(), ch
-
-
-def old_or_new_fit(ws):
-    """After a kill: the old fit complete and untouched, or a new complete one (fit.json names its mesh)."""
-    from torch_recon.contract.dataset.staging import StagedDir
-    ch = ws.changed()
-    fit = ws.root / "fit"
-    # the killed run's hidden staging folder is removed by the next run that writes there
-    StagedDir(fit, "fit", marker="fit.json", keep=("checkpoint.pt",)).discard()
-    assert not ws.leftovers(), ws.leftovers()
-    if not (set(ch["modified"]) - {"fit/checkpoint.pt"}) and not ch["lost"]:
-        return
-    rep = json.loads((fit / "fit.json").read_text())
-    side = json.loads((fit / "mesh.mesh.json").read_text())
-    assert rep["run_seconds"] >= side["metadata"]["run_seconds"] - 1e-6, "mesh and fit.json from different runs"
-
-
-def user_files_kept(*rels):
-    def check(ws):
-        for rel in rels:
-            assert (ws.root / rel).exists(), f"{rel} was deleted"
-        assert ws.before[rels[0]] == __import__("fault_workspace").tree_state(ws.root)[rels[0]]
-        assert not ws.leftovers(), ws.leftovers()
-    return check
-
-
-# ------------------------------------------------------------------------------------------ composite runs
-
-def fit_other_dataset(ws):
-    """A checkpoint of dataset A in --out, then fit dataset B with the same settings into it."""
-    ws.fit
-    ws.ds_b
-    ws.snapshot()
-    return ("recon", ["fit", ws.ds_b, "--out", ws.fit, *FIT_FAST])
-
-
-def evaluate_twice(ws):
-    """An earlier evaluation with error images and a user's note in --out; again without images."""
-    from torch_recon.cli import main
-    out = ws.root / "eval"
-    assert main(["evaluate", str(ws.mesh), "--dataset", str(ws.ds), "--out", str(out), "--samples", "500"]) == 0
-    assert (out / "views").is_dir()
-    (out / "notes.txt").write_text("mine")
-    ws.snapshot()
-    return ("recon", ["evaluate", ws.mesh, "--dataset", ws.ds, "--out", out, "--samples", "500",
-                      "--error-images", "0", "--seed", "1"])
-
-
-def after_evaluate_twice(ws):
-    out = ws.root / "eval"
-    assert (out / "notes.txt").read_text() == "mine"
-    assert not (out / "views").exists(), "old view images left beside the new report"
-    assert json.loads((out / "report.json").read_text())["settings"]["seed"] == 1
-    assert not ws.leftovers()
-
-
-def killed_during_mesh_export(ws):
-    """fit into a folder holding an earlier fit, killed (os._exit, no clean-up) after the first mesh file."""
-    import subprocess
-    import sys
-    ws.fit
-    ws.snapshot()
-    code = ("import sys, os, torch_recon.mesh_export as me\n"
-            "real = me.trimesh_export if hasattr(me, 'trimesh_export') else None\n"
-            "import trimesh\n"
-            "orig = trimesh.Trimesh.export\n"
-            "def export(self, *a, **k):\n"
-            "    r = orig(self, *a, **k)\n"
-            "    os._exit(137)\n"
-            "trimesh.Trimesh.export = export\n"
-            "from torch_recon.cli import main\n"
-            f"sys.exit(main(sys.argv[1:]))\n")
-    proc = subprocess.run([sys.executable, "-c", code, "fit", str(ws.npz), "--out", str(ws.fit), *FIT_FAST,
-                           "--no-resume", "--seed", "3"], capture_output=True, text=True, timeout=300)
-    return ("done", proc.returncode, "error: killed\n")
-
-
-def simulate_into_dataset_with_user_files(ws):
-    ws.ds
-    ws.write("ds/notes.txt", "my notes")
-    ws.write("ds/fit/fit.json", "{}")
-    ws.snapshot()
-    return ("sim", [*SIM_SMALL, "--out", ws.ds])
-
-
-def after_sim_user_files(ws):
-    assert (ws.root / "ds/notes.txt").read_text() == "my notes"
-    assert (ws.root / "ds/fit/fit.json").read_text() == "{}"
-    man = json.loads((ws.root / "ds/dataset.json").read_text())
-    assert man["sensor"]["width"] == 8
-    assert not ws.leftovers()
-
-
-SIM_SMALL = ["--example", "cave-chair", "--resolution", "8", "--spots", "2", "--test-views", "0"]
-
-
-def simulate_reuse_truncated(ws):
-    """A dataset simulated once, then a transient truncated: the re-run must render it again."""
-    from tests.support.fault_workspace import run_simulate
-    rc, err = run_simulate([*SIM_SMALL, "--out", ws.root / "sim"])
-    assert rc == 0, err
-    f = sorted((ws.root / "sim/transients").glob("spot_*.exr"))[0]
-    f.write_bytes(f.read_bytes()[:100])
-    ws.snapshot()
-    rc, err = run_simulate([*SIM_SMALL, "--out", ws.root / "sim"])
-    spot_id = int(f.stem.split("_")[1])
-    line = next((ln for ln in err.splitlines() if f"(id {spot_id}," in ln), "")
-    assert line and "unchanged, reused" not in line, err
-    return ("done", rc, err)
-
-
-def after_reuse_truncated(ws):
-    from torch_recon.contract.dataset import load_dataset
-    ds = load_dataset(ws.root / "sim")
-    for s in ds.manifest.spots:
-        ds.read_transient(s.id)
-    assert not ws.leftovers()
-
-
-def signal_simulate(sig, when):
-    def run(ws):
-        ws.ds
-        (ws.root / "tmp").mkdir()
-        ws.snapshot()
-        rc, err = run_signalled(["simulate", "--example", "cave-chair", "--resolution", "48", "--spots", "6",
-                                 "--test-views", "0", "--out", ws.ds], sig, when, tmpdir=ws.root / "tmp")
-        return ("done", rc, err)
-    return run
-
-
-def after_signal_simulate(ws):
-    ch = ws.changed()
-    assert not ch["lost"] and not ch["modified"], ch
-    left = [n for n in ch["new"]]
-    assert not left, f"left behind: {left[:5]}"
-    assert not ws.leftovers()
-    assert not any((ws.root / "tmp").iterdir()), list((ws.root / "tmp").iterdir())
-
-
-def signal_fit(sig):
-    def run(ws):
-        ws.fit
-        ws.npz
-        (ws.root / "tmp").mkdir()
-        ws.snapshot()
-        rc, err = run_signalled(["torch_recon", "fit", ws.npz, "--out", ws.fit, "--steps", "100000", "--threads", "1",
-                                 "--set", "fast.resolution=16", "--set", "fast.coarse_resolution=8",
-                                 "--no-resume", "--seed", "5"],
-                                sig, lambda text: "step/s" in text or "s/step" in text, tmpdir=ws.root / "tmp")
-        return ("done", rc, err)
-    return run
-
-
-# ------------------------------------------------------------------------------------------ add-on operators
-
-def addon_op(op, setup, says_path=True):
-    """Run an add-on operator on the room scene after `setup(scene, ws)`: (rc, the ERROR report)."""
-    def run(ws):
-        def call():
-            import bpy
-            from tests.support.addon_fixtures import build_room, enable_addon
-            bpy.ops.wm.read_factory_settings(use_empty=True)
-            enable_addon()
-            scene = bpy.context.scene
-            cam = build_room(scene)
-            scene.platolidar.camera = cam
-            kw = setup(scene, ws) or {}
-            ws.snapshot()
-            try:
-                res = getattr(bpy.ops.platolidar, op)(**kw)
-            except RuntimeError as exc:
-                msg = str(exc)
-                assert "Traceback" not in msg, msg
-                return 2, "error: " + msg.replace("Error: ", "").strip()
-            return (0 if res == {"FINISHED"} else 1), ""
-        return ("call", call)
-    return run
-
-
-def _set(**props):
-    def setup(scene, ws):
-        for k, v in props.items():
-            setattr(scene.platolidar, k, v(ws) if callable(v) else v)
-    return setup
-
-
-def _file_op(**kw):
-    def setup(scene, ws):
-        return {k: str(v(ws)) if callable(v) else v for k, v in kw.items()}
-    return setup
-
-
-def _prefs(**values):
-    def setup(scene, ws):
-        from tests.support.addon_fixtures import set_prefs
-        set_prefs(**{k: v(ws) for k, v in values.items()})
-    return setup
-
-
-def both_setup(*setups):
-    def setup(scene, ws):
-        kw = {}
-        for s in setups:
-            kw.update(s(scene, ws) or {})
-        return kw
-    return setup
-
+from tests.support.fault_inputs import (DELETE, DS, MESH, NPZ, Case, R, S, W, _npz_edit, both, break_transient,
+                                        edit_manifest, export_ours, fail_writes, npz_of, read_rgb, set_key,
+                                        truncate, write_file, write_image)
+from tests.support.fault_runs import (SIM_SMALL, _file_op, _prefs, _set, addon_op, after_evaluate_twice,
+                                      after_reuse_truncated, after_signal_simulate, after_sim_user_files,
+                                      both_setup, evaluate_twice, fit_other_dataset, fit_unchanged_but_checkpoint,
+                                      killed_during_mesh_export, old_or_new_fit, signal_fit,
+                                      signal_simulate, simulate_into_dataset_with_user_files,
+                                      simulate_reuse_truncated)
+from tests.support.fault_workspace import FIT_FAST, ROOT, SIGINT, SIGTERM
 
 # ------------------------------------------------------------------------------------------ the table
 
@@ -525,11 +178,29 @@ CASES = [
          prepare=write_file("src/transforms_train.json", "{")),
     Case("conv-from-bin-negative", R("convert", "from-platonerf", W("src"), W("out"), "--bin-ps", "-5"),
          says=("bin",), prepare=write_file("src/transforms_train.json", "{}")),
+    # an export of ours records bins, pulse and window: a contradicting option is refused, not ignored
+    Case("conv-ours-window-bins", R("convert", "from-platonerf", W("pn"), W("out"), "--window-bins", "4"),
+         says=("--window-bins", "platolidar.layout.window_bins"), prepare=export_ours("pn")),
+    Case("conv-ours-bin-ps", R("convert", "from-platonerf", W("pn"), W("out"), "--bin-ps", "64"),
+         says=("--bin-ps", "bin_width_ps"), prepare=export_ours("pn")),
+    Case("conv-ours-bin-m", R("convert", "from-platonerf", W("pn"), W("out"), "--bin-m", "0.02"),
+         says=("--bin-m", "bin_width_m"), prepare=export_ours("pn")),
+    Case("conv-ours-pulse-by-set", R("convert", "from-platonerf", W("pn"), W("out"), "--set", "pulse_fwhm_ps=50"),
+         says=("--pulse-fwhm-ps", "pulse.fwhm_ps"), prepare=export_ours("pn")),
     Case("conv-to-missing-dataset", R("convert", "to-platonerf", W("nothing"), W("out")), says=("nothing",)),
     Case("conv-to-foreign-folder", R("convert", "to-platonerf", DS, W("photos")), says=("photos",),
          prepare=write_file("photos/holiday.jpg", b"x")),
     Case("conv-to-broken-dataset", R("convert", "to-platonerf", DS, W("out")), says=("spot_0000.exr",),
          prepare=break_transient("truncated")),
+
+    # --- intensity images (torch_recon.rgb_shadow, a library call behind the CLI's error handling)
+    Case("rgb-png-missing", read_rgb("rgb/none.png"), says=("none.png", "no such file")),
+    Case("rgb-png-garbage", read_rgb("rgb/spot_0000.png"), says=("spot_0000.png", "rgb_files", "png"),
+         prepare=write_file("rgb/spot_0000.png", "not a png")),
+    Case("rgb-png-float", read_rgb("rgb/spot_0000.tif"), says=("spot_0000.tif", "rgb_files", "16-bit"),
+         prepare=write_image("rgb/spot_0000.tif", np.zeros((5, 6), np.float32))),
+    Case("rgb-png-grey-alpha", read_rgb("rgb/spot_0000.png"), says=("spot_0000.png", "rgb_files", "shape"),
+         prepare=write_image("rgb/spot_0000.png", np.zeros((5, 6, 2), np.uint8))),
 
     # --- command line
     Case("cli-unknown-command", R("reconstruct", DS), says=("reconstruct",)),
@@ -590,9 +261,3 @@ CASES = [
         _prefs(python_path=lambda ws: sys.executable, project_dir=lambda ws: str(ROOT)),
         _set(recon_dataset_dir=lambda ws: str(ws.p("e/x").parent)))), says=("dataset.json",)),
 ]
-
-
-def _npz_edit(ws, **arrays):
-    z = dict(np.load(ws.npz))
-    z.update(arrays)
-    np.savez(ws.p("odd.npz"), **z)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import make_synthetic_dataset
-from torch_recon.contract.dataset import Transient, load_dataset
+from torch_recon.contract.dataset import DatasetError, Transient, load_dataset
 from torch_recon.measurements import Measurements, SpotMeasurement
 from torch_recon.rgb_shadow import (apply_intensity_shadows, integrated_intensity, intensity_shadow_masks,
                                     mask_agreement, read_rgb_luminance, srgb_to_linear)
@@ -151,5 +151,10 @@ def test_rgb_png_luminance_round_trip(tmp_path):
     got = read_rgb_luminance(tmp_path / "rgb8.png")
     np.testing.assert_allclose(got, [[0.0, 0.002, 0.2126, 1.0]], atol=5e-3)
     imsave(tmp_path / "f.tif", np.zeros((2, 2), np.float32), check_contrast=False)
-    with pytest.raises(ValueError, match="8- or 16-bit"):
+    with pytest.raises(DatasetError, match=r"f\.tif: field 'rgb_files': expected an 8- or 16-bit PNG"):
         read_rgb_luminance(tmp_path / "f.tif")
+    (tmp_path / "bad.png").write_text("not a png")
+    with pytest.raises(DatasetError, match=r"bad\.png: field 'rgb_files': not a readable PNG"):
+        read_rgb_luminance(tmp_path / "bad.png")
+    with pytest.raises(FileNotFoundError):
+        read_rgb_luminance(tmp_path / "none.png")

@@ -188,6 +188,27 @@ def test_convert_cli_ignore(tmp_path, paper_export, capsys):
     assert not (tmp_path / "b").exists() and not (tmp_path / "c").exists()
 
 
+@pytest.mark.parametrize("flag, value, field", [("--window-bins", "4", "layout.window_bins"),
+                                                  ("--bin-ps", "64", "sensor.bin_width_ps"),
+                                                  ("--bin-m", "0.02", "sensor.bin_width_m"),
+                                                  ("--pulse-fwhm-ps", "50", "sensor.pulse.fwhm_ps")])
+def test_convert_refuses_options_our_export_fixes(tmp_path, capsys, flag, value, field):
+    """Our export records bins, pulse and window: an option contradicting them is refused, naming the flag."""
+    from torch_recon.cli import main
+
+    manifest, _ = make_synthetic_dataset(tmp_path / "ds", window_bins=8)
+    pn = export_platonerf(tmp_path / "ds", tmp_path / "pn")
+    assert main(["convert", "from-platonerf", str(pn), str(tmp_path / "back"), flag, value]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and flag in err and f"platolidar.{field}" in err, err
+    assert not (tmp_path / "back").exists()
+    # the recorded value itself is harmless, and without options the export comes back whole
+    recorded = {"--window-bins": manifest.layout.window_bins, "--bin-ps": manifest.sensor.bin_width_ps,
+                "--bin-m": manifest.sensor.bin_width_m, "--pulse-fwhm-ps": manifest.sensor.pulse.fwhm_ps}[flag]
+    assert main(["convert", "from-platonerf", str(pn), str(tmp_path / "same"), flag, str(recorded)]) == 0
+    assert load_dataset(tmp_path / "same").manifest.layout == manifest.layout
+
+
 def test_training_frame_is_where_their_flipped_pose_lives():
     """Their training negates rows 0 and 2 of the stored pose; lights are written in that frame."""
     from torch_recon.contract.frames import (blender_to_paper_c2w, look_at_c2w, pixel_rays,
