@@ -107,7 +107,8 @@ def test_import_as_their_preprocessing_writes(tmp_path):
     train = ds.train_depth()
     assert np.array_equal(np.isinf(train), ~np.isfinite(parts["range"]))
     # our preprocessing finds their first bounces
-    from torch_recon.preprocess import PreprocessSettings, find_first_bounce
+    from torch_recon.first_bounce import find_first_bounce
+    from torch_recon.preprocess import PreprocessSettings
     for sp in ds.manifest.enabled_spots[:4]:
         fb = find_first_bounce(ds.read_transient(sp.id), s, sp.laser_direction, sp.id, PreprocessSettings())
         assert np.linalg.norm(fb.point - parts["spots"][sp.id].first_bounce) < 0.02
