@@ -51,3 +51,19 @@ def test_operator_ids_are_ours_and_each_has_poll():
     for cls in panels.classes:
         if issubclass(cls, bpy.types.Panel):
             assert cls.bl_category == "Lidar" and cls.bl_space_type == "VIEW_3D" and cls.bl_region_type == "UI"
+
+
+def test_operators_on_lidar_settings_share_one_poll():
+    """Every operator acting on the scene's settings polls through the one NeedsLidarSettings mixin."""
+    from addon.operators._common import NeedsLidarSettings
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    enable_addon()
+    try:
+        users = [cls for cls in operators.classes if issubclass(cls, NeedsLidarSettings)]
+        assert len(users) >= 10
+        for cls in users:
+            assert "poll" not in vars(cls), f"{cls.__name__} repeats the poll"
+            assert getattr(bpy.ops.platolidar, cls.bl_idname.split(".")[1]).poll(), cls.bl_idname
+    finally:
+        disable_addon()
