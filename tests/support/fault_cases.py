@@ -15,7 +15,6 @@ operators). `prepare(ws, monkeypatch)` breaks an input or injects a fault first.
 or a real training run (pytest -m slow).
 """
 
-
 from __future__ import annotations
 
 import errno
@@ -23,15 +22,15 @@ import sys
 
 import numpy as np
 
-from tests.support.fault_inputs import (DELETE, DS, MESH, NPZ, Case, R, S, W, _npz_edit, both, break_transient,
-                                        edit_manifest, export_ours, fail_writes, npz_of, read_rgb, set_key,
-                                        truncate, write_file, write_image)
-from tests.support.fault_runs import (SIM_SMALL, _file_op, _prefs, _set, addon_op, after_evaluate_twice,
-                                      after_reuse_truncated, after_signal_simulate, after_sim_user_files,
-                                      both_setup, evaluate_twice, fit_other_dataset, fit_unchanged_but_checkpoint,
-                                      killed_during_mesh_export, old_or_new_fit, signal_fit,
+from tests.support.fault_inputs import (DELETE, DS, MESH, NPZ, Case, R, S, W, both, break_transient, edit_manifest,
+                                        export_ours, fail_writes, npz_edit, npz_of, read_rgb, set_key, truncate,
+                                        write_file, write_image)
+from tests.support.fault_runs import (SIM_SMALL, addon_op, after_evaluate_twice, after_reuse_truncated,
+                                      after_signal_simulate, after_sim_user_files, both_setup, evaluate_twice,
+                                      file_op, fit_other_dataset, fit_unchanged_but_checkpoint,
+                                      killed_during_mesh_export, old_or_new_fit, set_props, signal_fit,
                                       signal_simulate, simulate_into_dataset_with_user_files,
-                                      simulate_reuse_truncated)
+                                      simulate_reuse_truncated, with_prefs)
 from tests.support.fault_workspace import FIT_FAST, ROOT, SIGINT, SIGTERM
 
 # ------------------------------------------------------------------------------------------ the table
@@ -109,9 +108,9 @@ CASES = [
     Case("fit-npz-foreign-arrays", R("fit", W("odd.npz"), "--out", W("out")), says=("odd.npz",),
          prepare=npz_of(x=np.zeros(3))),
     Case("fit-npz-nan-camera", R("fit", W("odd.npz"), "--out", W("out")), says=("odd.npz", "camera_to_world"),
-         prepare=lambda ws, mp: _npz_edit(ws, camera_to_world=np.full((4, 4), np.nan))),
+         prepare=lambda ws, mp: npz_edit(ws, camera_to_world=np.full((4, 4), np.nan))),
     Case("fit-npz-huge-claim", R("fit", W("odd.npz"), "--out", W("out")), says=("odd.npz", "pixels"),
-         prepare=lambda ws, mp: _npz_edit(ws, meta_i=np.array([10 ** 6, 10 ** 6]))),
+         prepare=lambda ws, mp: npz_edit(ws, meta_i=np.array([10 ** 6, 10 ** 6]))),
     Case("fit-out-is-file", R("fit", NPZ, "--out", W("out")), says=("out",), prepare=write_file("out", "x")),
     Case("fit-out-foreign-folder", R("fit", NPZ, "--out", W("photos"), *FIT_FAST), says=("photos", "not empty"),
          prepare=write_file("photos/holiday.jpg", b"x")),
@@ -240,24 +239,24 @@ CASES = [
          says=("interrupted",), after=after_signal_simulate, slow=True),
 
     # --- add-on operators (one line in the ERROR report, CANCELLED, nothing touched)
-    Case("addon-import-mesh-missing", addon_op("import_reconstruction", _set(import_path=lambda ws: str(ws.root / "no.ply"))),
-         says=("no.ply",)),
+    Case("addon-import-mesh-missing",
+         addon_op("import_reconstruction", set_props(import_path=lambda ws: str(ws.root / "no.ply"))), says=("no.ply",)),
     Case("addon-import-mesh-garbage", addon_op("import_reconstruction",
-                                               _set(import_path=lambda ws: str(ws.write("bad.ply", "zz")))),
+                                               set_props(import_path=lambda ws: str(ws.write("bad.ply", "zz")))),
          says=("bad.ply",)),
     Case("addon-import-depth-garbage", addon_op("import_visible_depth",
-                                                _set(measurements_path=lambda ws: str(ws.write("bad.npz", "zz")))),
+                                                set_props(measurements_path=lambda ws: str(ws.write("bad.npz", "zz")))),
          says=("bad.npz",)),
-    Case("addon-import-depth-foreign-npz", addon_op("import_visible_depth", _set(
+    Case("addon-import-depth-foreign-npz", addon_op("import_visible_depth", set_props(
         measurements_path=lambda ws: (np.savez(ws.p("odd.npz"), x=np.zeros(2)), str(ws.root / "odd.npz"))[1])),
         says=("odd.npz",)),
-    Case("addon-load-config-bad-json", addon_op("load_config", _file_op(filepath=lambda ws: ws.write("c.json", "{"))),
+    Case("addon-load-config-bad-json", addon_op("load_config", file_op(filepath=lambda ws: ws.write("c.json", "{"))),
          says=("c.json",)),
-    Case("addon-load-config-wrong-type", addon_op("load_config", _file_op(
+    Case("addon-load-config-wrong-type", addon_op("load_config", file_op(
         filepath=lambda ws: ws.write("c.json", '{"bins": "many"}'))), says=("bins",)),
     Case("addon-export-config-no-folder", addon_op("export_config", both_setup(
-        _set(spot_source="RANDOM"), _file_op(filepath=W("nodir/c.json")))), says=("nodir",)),
+        set_props(spot_source="RANDOM"), file_op(filepath=W("nodir/c.json")))), says=("nodir",)),
     Case("addon-reconstruct-not-a-dataset", addon_op("reconstruct", both_setup(
-        _prefs(python_path=lambda ws: sys.executable, project_dir=lambda ws: str(ROOT)),
-        _set(recon_dataset_dir=lambda ws: str(ws.p("e/x").parent)))), says=("dataset.json",)),
+        with_prefs(python_path=lambda ws: sys.executable, project_dir=lambda ws: str(ROOT)),
+        set_props(recon_dataset_dir=lambda ws: str(ws.p("e/x").parent)))), says=("dataset.json",)),
 ]

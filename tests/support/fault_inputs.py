@@ -137,7 +137,7 @@ def both(*preps):
     return prep
 
 
-def _npz_edit(ws, **arrays):
+def npz_edit(ws, **arrays):
     z = dict(np.load(ws.npz))
     z.update(arrays)
     np.savez(ws.p("odd.npz"), **z)

@@ -196,20 +196,20 @@ def addon_op(op, setup, says_path=True):
     return run
 
 
-def _set(**props):
+def set_props(**props):
     def setup(scene, ws):
         for k, v in props.items():
             setattr(scene.platolidar, k, v(ws) if callable(v) else v)
     return setup
 
 
-def _file_op(**kw):
+def file_op(**kw):
     def setup(scene, ws):
         return {k: str(v(ws)) if callable(v) else v for k, v in kw.items()}
     return setup
 
 
-def _prefs(**values):
+def with_prefs(**values):
     def setup(scene, ws):
         from tests.support.addon_fixtures import set_prefs
         set_prefs(**{k: v(ws) for k, v in values.items()})
