@@ -383,13 +383,6 @@ def bin_windows(pixels, paths, amps, n_pixels: int, sensor, window_bins: int, *,
         if f.min() < 0 or f.max() + k_sup > t:          # pulse tails past the range: cut
             ok = (f[:, None] + offsets >= 0) & (f[:, None] + offsets < t)
             idx, w = idx[ok], w[ok]
+        # ufunc.at (numpy >= 1.25 fast path) measured faster than bincount into the windows' rows
         np.add.at(flat, idx.ravel(), w.ravel().astype(np.float32))
-    return start, window, needed
-    w *= amps[:, None]
-    idx = (pixels * g - start[pixels] + first)[:, None] + np.arange(k_sup)[None, :]
-    if first.min() < 0 or first.max() + k_sup > t:          # pulse tails past the range: cut
-        bins = first[:, None] + np.arange(k_sup)[None, :]
-        ok = (bins >= 0) & (bins < t)
-        idx, w = idx[ok], w[ok]
-    window[:] = np.bincount(idx.ravel(), weights=w.ravel(), minlength=n_pixels * g).reshape(n_pixels, g)
     return start, window, needed
