@@ -214,3 +214,24 @@ def test_spot_lighting_only_hidden_surfaces_keeps_its_first_bounce():
     totals[2, 1] = 8.0                      # only the first-bounce pixel has light
     assert photon_scale(totals, noise, first_bounce_pixel=(2, 1)) == pytest.approx(50.0 / 8.0)
     assert photon_scale(np.zeros((4, 4)), noise, first_bounce_pixel=(2, 1)) == 1.0
+
+
+@pytest.mark.parametrize("noise", [NoiseSpec(photons_per_pixel=100.0),
+                                   NoiseSpec(photon_counts=True, photons_per_pixel=100.0)])
+def test_windows_in_place_gives_the_same_samples(noise):
+    """apply_sensor_windows(in_place=True) (the simulator's, one window less in memory) overwrites its input
+    with exactly what the copying call returns, Poisson draws included (same seed)."""
+    from pipeline.sensor_model import apply_sensor_windows
+
+    s = make_sensor(w=8, h=6, bins=40)
+    rng = np.random.default_rng(3)
+    window = rng.random((6, 8, 12)).astype(np.float32) * (rng.random((6, 8, 1)) > 0.3)
+    start = rng.integers(0, 28, (6, 8))
+    ref, lay = apply_sensor_windows(start, window.copy(), s, noise, np.random.default_rng(7), first_bounce_pixel=(1, 2))
+    buf = window.copy()
+    out, lay2 = apply_sensor_windows(start, buf, s, noise, np.random.default_rng(7), first_bounce_pixel=(1, 2),
+                                     in_place=True)
+    assert lay == lay2
+    np.testing.assert_array_equal(out.window, ref.window)
+    np.testing.assert_array_equal(buf, ref.window)            # written into the caller's array
+    assert not np.array_equal(ref.window, window)             # the copying call left its input alone
