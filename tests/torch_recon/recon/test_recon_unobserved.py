@@ -43,7 +43,7 @@ def test_walls_bound_the_observation_a_table_top_does_not():
 
 
 def test_floor_outside_the_view_is_completed_and_known_free_space_stays_empty():
-    from recon_fixtures import box_floor_measurements
+    from tests.support.recon_fixtures import box_floor_measurements
 
     from torch_recon.recon.config import FitConfig
     from torch_recon.recon.data import build_ray_data
