@@ -24,6 +24,7 @@ pixel's base samples in its histogram. No bpy here.
 
 from __future__ import annotations
 
+import threading
 import warnings
 
 import numpy as np
@@ -247,10 +248,14 @@ class RefinedGeometry:
         self.nrm = np.zeros((0, self.n, 3), np.float32)
         self.alb = np.zeros((0, self.n), np.float32)
         self.valid = np.zeros((0, self.n), bool)
+        self._lock = threading.Lock()      # spots are shaded in threads; the cache grows under the lock
 
     def samples(self, pixels: np.ndarray):
         """(x (M, n, 3), normal (M, n, 3), albedo (M, n), valid (M, n)) of flat pixel indices (M,)."""
-        pixels = np.asarray(pixels, np.int64)
+        with self._lock:
+            return self._samples(np.asarray(pixels, np.int64))
+
+    def _samples(self, pixels: np.ndarray):
         new = np.unique(pixels[self.row_of[pixels] < 0])
         if len(new):
             parts = [self._cast(new[a:a + CHUNK_PIXELS]) for a in range(0, len(new), CHUNK_PIXELS)]

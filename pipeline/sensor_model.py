@@ -106,14 +106,17 @@ def _poisson_counts(expected: np.ndarray, scale: float, background: np.ndarray, 
     total Poisson(b * g) spread uniformly over its g bins (splitting a Poisson process).
     """
     n, g = expected.shape
-    out.fill(0.0)
     nz = expected > 0
+    draws = None
     if nz.any():
         try:
-            out[nz] = rng.poisson(expected[nz].astype(np.float64) * scale)
+            draws = rng.poisson(expected[nz].astype(np.float64) * scale)
         except ValueError as exc:
             raise ValueError(f"photons_per_pixel: Poisson sampling failed ({exc}); lower photons_per_pixel"
                              ) from None
+    out.fill(0.0)                   # only now: out may be expected itself (apply_sensor_windows in_place)
+    if draws is not None:
+        out[nz] = draws
     if np.any(background > 0):
         totals = rng.poisson(background * g)
         pixel = np.repeat(np.arange(n), totals)
@@ -249,13 +252,14 @@ def widen_window(tr: Transient, window_bins: int) -> Transient:
 
 
 def apply_sensor_windows(start, window, sensor: SensorSpec, noise: NoiseSpec, rng: np.random.Generator, *,
-                         first_bounce_pixel=None, sample_type: str = "float32"):
+                         first_bounce_pixel=None, sample_type: str = "float32", in_place: bool = False):
     """apply_sensor for an expected transient already in windows (transient_binning.bin_windows).
 
     Only stages 1 and 5 apply (no background, no time gate: the caller expands to a dense cube
     for those), so the windows are the stored layout: the same result as apply_sensor on the
     dense cube followed by widen_window to G, without ever building the cube.
-    start (H, W) first bin per pixel, window (H, W, G) expected values >= 0.
+    start (H, W) first bin per pixel, window (H, W, G) expected values >= 0; in_place: the detected
+    samples overwrite window (a float32 array the caller gives up: one window less in memory).
     """
     start = np.asarray(start, np.int64)
     window = np.asarray(window, np.float32)
@@ -276,7 +280,7 @@ def apply_sensor_windows(start, window, sensor: SensorSpec, noise: NoiseSpec, rn
     scale = photon_scale(flat.sum(axis=1, dtype=np.float64).reshape(h, w), noise, first_bounce_pixel)
     if not float(flat.max(initial=0.0)) * scale <= np.finfo(np.float32).max:
         raise ValueError("photons_per_pixel: the scaled transient overflows float32; lower photons_per_pixel")
-    out = np.empty_like(flat)
+    out = flat if in_place and window.dtype == np.float32 else np.empty_like(flat)
     for a in range(0, h * w, CHUNK_PIXELS):
         b = min(a + CHUNK_PIXELS, h * w)
         _detect(flat[a:b], scale, None, noise, rng, out=out[a:b])

@@ -14,203 +14,37 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import sys
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 
 import bpy
 import numpy as np
-from scipy.ndimage import maximum_filter, minimum_filter
 
 from pipeline import blender_scene as bs
 from pipeline import sensor_model, third_bounce, transient_binning
+from pipeline.cycles_render import CyclesRenderer
+from pipeline.spot_planning import (DEFAULT_ALBEDO, LASER_POWER_W, SimulationError, SpotPlan,  # noqa: F401 (re-exported)
+                                    check_spots_in_view, first_bounce_pixel, log, noise_spec, plan_spots, sensor_spec,
+                                    window_bins_bound)
 from pipeline.spot_samples import SpotSampler, windows_to_dense
-from torch_recon.contract import ground_truth, spots
-from torch_recon.contract.errors import PlatolidarError
-from pipeline.cycles_render import EMITTER_OFFSET_M, CyclesRenderer
-from torch_recon.contract.dataset import (DatasetError, DatasetWriter, Manifest, NoiseSpec, Provenance, PulseSpec,
-                                 SensorSpec, Spot, TimeGate, TransientLayout, load_dataset, transient_relpath)
-from torch_recon.contract.frames import focal_length_px, project_points
-from torch_recon.contract.units import ps_to_m
+from torch_recon.contract import ground_truth
+from torch_recon.contract.dataset import (DatasetError, DatasetWriter, Manifest, NoiseSpec, Provenance, SensorSpec,
+                                          Spot, TransientLayout, load_dataset, transient_relpath)
 
 SIM_VERSION = "1.2"   # 1.1: deferred Lambertian shading, adaptive edge sampling; 1.2: edge samples shade with corner normals
-LASER_POWER_W = 1.0          # expected values are in units of this power; the sensor model rescales
 RGB_POWER_W = 100.0          # point light of the RGB-shadow images (exposure only)
-DEFAULT_ALBEDO = 0.8
 #: spots whose transients may wait for the background writer
 WRITE_QUEUE = 1
-
-
-class SimulationError(PlatolidarError, RuntimeError):
-    """A scene/setting combination that cannot be simulated; the message says which and why."""
+#: spots shaded and binned at once (threads; the target machine has 2 cores)
+SPOT_THREADS = 2
 
 
 class WindowTooSmall(Exception):
     def __init__(self, spot_id: int, needed: int):
         super().__init__(spot_id, needed)
         self.spot_id, self.needed = spot_id, needed
-
-
-@dataclass
-class SpotPlan:
-    id: int
-    name: str
-    direction: np.ndarray
-    first_bounce: np.ndarray | None = None
-    normal: np.ndarray | None = None
-    albedo: float = DEFAULT_ALBEDO
-    pixel: tuple | None = None               # (row, col) that sees l, when it is visible
-    first_bounce_radiance: float = 0.0
-
-
-def log(msg: str):
-    print(msg, file=sys.stderr, flush=True)
-
-
-def sensor_spec(cfg, c2w, fov_rad, fov_axis, laser_origin) -> SensorSpec:
-    return SensorSpec(width=cfg.width, height=cfg.height, fov_rad=float(fov_rad), fov_axis=fov_axis,
-                      camera_to_world=np.asarray(c2w).tolist(), laser_origin=[float(v) for v in laser_origin],
-                      pulse=PulseSpec(cfg.pulse_shape, float(cfg.pulse_fwhm_ps)), bin_width_ps=float(cfg.bin_ps),
-                      bin_width_m=float(cfg.bin_m if cfg.bin_m is not None else ps_to_m(cfg.bin_ps)), bins=cfg.bins, start_m=float(cfg.start_m),
-                      time_gate=TimeGate(bool(cfg.time_gate), cfg.gate_window_bins if cfg.time_gate else 0))
-
-
-def noise_spec(cfg) -> NoiseSpec:
-    return NoiseSpec(photon_counts=cfg.photon_counts, photons_per_pixel=float(cfg.photons_per_pixel),
-                     ambient_per_bin=float(cfg.ambient_per_bin),
-                     wavelength_filter_factor=float(cfg.wavelength_filter_factor),
-                     dark_counts_per_bin=float(cfg.dark_counts_per_bin), seed=cfg.seed)
-
-
-# -- spots ---------------------------------------------------------------------------------
-def plan_spots(cfg, scene, depsgraph, sensor, keep_requested: bool) -> list:
-    """Spots to simulate, laser ray cast done (l, normal); misses warned about and dropped."""
-    o = np.asarray(sensor.laser_origin)
-    forward = -np.asarray(sensor.camera_to_world)[:3, 2]
-    rng = np.random.default_rng(cfg.seed)
-    laser_object = scene.objects.get(cfg.laser_object) if cfg.laser_object else None
-    exclude = (laser_object.original,) if laser_object is not None else ()   # the laser's own housing
-    if cfg.spots:
-        plans = []
-        for i, s in enumerate(cfg.spots):
-            d = np.asarray(s.direction if s.direction is not None else np.subtract(s.target, o), np.float64)
-            n = np.linalg.norm(d)
-            if n < 1e-9:
-                raise SimulationError(f"spots[{i}]: the target coincides with the laser origin")
-            d /= n
-            if np.dot(d, forward) <= 1e-6:
-                raise SimulationError(f"spots[{i}] ({s.name or 'unnamed'}): the laser aims behind the sensor "
-                                      f"(direction {np.round(d, 3).tolist()}, sensor looks along "
-                                      f"{np.round(forward, 3).tolist()})")
-            plans.append((SpotPlan(i, s.name or f"spot_{i}", d), s.enabled))
-        pool = [p for p, en in plans if en]
-        if keep_requested and cfg.random_keep > len(pool):
-            pool = [p for p, _ in plans]
-    else:
-        # the same recipe (and seed) as the add-on's "Generate Spots": selection already done
-        targets, _, found = bs.random_spot_targets(scene, depsgraph, sensor, cfg.random_candidates, cfg.random_keep,
-                                                   cfg.seed, exclude)
-        if found < cfg.random_candidates:
-            log(f"warning: only {found} of {cfg.random_candidates} random candidates hit a surface the laser reaches")
-        pool = []
-        for i, t in enumerate(targets):
-            d = (t - o) / np.linalg.norm(t - o)
-            pool.append(SpotPlan(i, f"random_{i}", d))
-    hits = []
-    for p in pool:
-        hit = bs.ray_cast(scene, depsgraph, o + 1e-4 * p.direction, p.direction, exclude=exclude)
-        if hit is None:
-            log(f"warning: spot {p.id} ({p.name}): the laser ray hits nothing; spot skipped")
-            continue
-        p.first_bounce, n_l, obj = hit
-        p.normal = n_l if np.dot(n_l, o - p.first_bounce) >= 0 else -n_l   # the side facing the laser
-        p.albedo = bs.object_albedo(obj) or DEFAULT_ALBEDO
-        hits.append(p)
-    if not hits:
-        raise SimulationError("no laser spot hits the scene (check the spot targets and that the scene has geometry)")
-    if keep_requested and cfg.spots:
-        k = cfg.random_keep
-        if k < len(hits):
-            idx = spots.select_diverse_spots(np.array([p.first_bounce for p in hits]),
-                                             np.array([p.normal for p in hits]), k, rng)
-            hits = [hits[int(i)] for i in idx]   # selection order: the first k are a spread-out subset
-        elif k > len(hits):
-            log(f"warning: {k} spots requested, {len(hits)} available")
-    return hits
-
-
-def first_bounce_pixel(p: SpotPlan, sensor, scene, depsgraph, geometry):
-    """Pixel that sees l, albedo at l from the Diffuse Color pass, first-bounce radiance."""
-    c2w = np.asarray(sensor.camera_to_world)
-    c = c2w[:3, 3]
-    col, row, depth = project_points(c2w, sensor.width, sensor.height, sensor.fov_rad, p.first_bounce,
-                                     sensor.fov_axis)
-    if not (depth > 0 and 0 <= col < sensor.width and 0 <= row < sensor.height):
-        log(f"warning: spot {p.id}: l is outside the sensor's view; no first-bounce return recorded")
-        return
-    r, cl = int(row), int(col)
-    dist_lc = float(np.linalg.norm(p.first_bounce - c))
-    to_l = (p.first_bounce - c) / max(dist_lc, 1e-12)
-    hit = bs.ray_cast(scene, depsgraph, c + 1e-4 * to_l, to_l)
-    if hit is not None and np.linalg.norm(hit[0] - c) < dist_lc - 1e-3:   # something in front of l
-        log(f"warning: spot {p.id}: l is hidden from the sensor; no first-bounce return recorded")
-        return
-    pos, _, alb, valid = geometry
-    d = np.linalg.norm(pos[:, r, cl] - p.first_bounce, axis=-1)
-    d[~valid[:, r, cl]] = np.inf
-    f_px = focal_length_px(sensor.width, sensor.height, sensor.fov_rad, sensor.fov_axis)
-    footprint = dist_lc / f_px
-    k = int(np.argmin(d))
-    if d[k] < max(0.01, footprint):   # a sub-sample on the spot: albedo from the Diffuse Color pass (textures)
-        p.albedo = float(np.mean(alb[k, r, cl]))
-    cos_view = abs(float(np.dot(p.normal, (c - p.first_bounce) / max(dist_lc, 1e-9))))
-    a_pix = footprint ** 2 / max(cos_view, 1e-3)
-    p.pixel = (r, cl)
-    p.first_bounce_radiance = (p.albedo / math.pi) * LASER_POWER_W / a_pix
-
-
-def window_bins_bound(plans, sensor, geometry, footprint_m: float, neighbourhood: bool = False) -> int:
-    """A window length holding every non-zero bin of every spot (one layout for the dataset).
-
-    neighbourhood: bound each pixel's paths over its 3 x 3 neighbours (adaptive sampling).
-    Also checks, before any rendering, that every path that could be lit (the sample faces l
-    and l faces the sample) fits the bin range. float32 (+2 bins of margin): it is a bound.
-    """
-    kernel = transient_binning.PulseKernel(sensor)
-    pos, nrm, _, valid = geometry
-    f32 = np.float32
-    to_camera = np.linalg.norm(pos - sensor.sensor_origin.astype(f32), axis=-1)   # spot-independent
-    n_dot_x = np.einsum("shwc,shwc->shw", nrm, pos)
-    spread = 0.0
-    for p in plans:
-        l = p.first_bounce.astype(f32)
-        v = l - pos
-        # faces some point of the emitter disk (radius + offset), not only its centre
-        tol = f32(footprint_m + EMITTER_OFFSET_M + 1e-4)
-        facing = valid & (nrm @ l - n_dot_x > -tol) & (v @ p.normal.astype(f32) < tol)
-        d_lo = f32(np.linalg.norm(p.first_bounce - np.asarray(sensor.laser_origin)))
-        paths = d_lo + np.linalg.norm(v, axis=-1) + to_camera
-        lit_paths = paths[facing]
-        if lit_paths.size and (lit_paths.max() >= kernel.end_m or lit_paths.min() < kernel.start_m):
-            need = int(math.ceil((lit_paths.max() - sensor.start_m) / sensor.bin_width_m)) + 1
-            raise SimulationError(
-                f"spot {p.id}: optical paths up to {lit_paths.max():.2f} m exceed the bin range "
-                f"[{kernel.start_m:.2f}, {kernel.end_m:.2f}) m; raise 'bins' to at least {need} "
-                f"(--bins) or the bin width (--bin-ps)")
-        hi = np.where(facing, paths, -np.inf).max(axis=0)
-        lo = np.where(facing, paths, np.inf).min(axis=0)
-        if neighbourhood:           # edge pixels are sampled again: their samples may see what a neighbour sees
-            hi, lo = maximum_filter(hi, size=3), minimum_filter(lo, size=3)
-        if p.pixel is not None:     # the first-bounce return shares its pixel with two-bounce samples
-            p1 = transient_binning.first_bounce_path(p.first_bounce, sensor.laser_origin, sensor.sensor_origin)
-            hi[p.pixel] = max(hi[p.pixel], p1)
-            lo[p.pixel] = min(lo[p.pixel], p1)
-        ok = np.isfinite(hi)
-        if ok.any():
-            spread = max(spread, float((hi[ok] - lo[ok]).max()))
-    g = int(math.ceil(spread / sensor.bin_width_m)) + kernel.support_bins + 2
-    return min(g, sensor.bins)
 
 
 def geometry_hash(triangles, geometry, albedos) -> str:
@@ -372,44 +206,54 @@ def check_size(cfg) -> None:
                               f"exceed Cycles' 65536 x 65536 render limit")
 
 
-def check_spots_in_view(plans, sensor) -> None:
-    """Every spot's l must lie in the sensor's view: its first bounce locates it (else preprocess refuses)."""
-    c2w = np.asarray(sensor.camera_to_world)
-    outside = []
-    for p in plans:
-        col, row, depth = project_points(c2w, sensor.width, sensor.height, sensor.fov_rad, p.first_bounce,
-                                         sensor.fov_axis)
-        if not (depth > 0 and 0 <= col < sensor.width and 0 <= row < sensor.height):
-            outside.append(f"{p.id} ({p.name})")
-    if outside:
-        raise SimulationError(f"spot(s) {', '.join(outside)} lie outside the sensor's {sensor.width}x{sensor.height} "
-                              f"view (their first bounce cannot be measured): aim them inside the view or change "
-                              f"the width/height or the camera")
-
-
 def write_dataset(out_dir, plans, ctx: RunContext):
     """Render (or reuse) every spot, write ground truth and commit: one atomic dataset."""
     cfg, timings, old = ctx.cfg, ctx.timings, ctx.old
     old_files = {s.content_hash: old.root / s.transient_file for s in old.manifest.spots} if old else {}
-    # transients are written by one background thread (zlib in OpenEXR runs without the GIL) while
-    # the next spot is shaded; at most WRITE_QUEUE spots wait, bounding memory
-    with DatasetWriter(out_dir) as writer, ThreadPoolExecutor(max_workers=1) as write_pool:
-        spots, rgb_files, layout, pending = [], [], None, []
+    # spots are shaded and binned SPOT_THREADS at a time (numpy and OpenEXR release the GIL in their
+    # loops) and their transients written by one more thread, in spot order; Cycles (shading 'cycles',
+    # the third bounce, RGB) stays on the main thread, bpy is not thread-safe
+    parallel = ctx.sampler is not None and ctx.vpl is None
+    reuse = {}
+    for p in plans:
+        h = spot_hash(p, ctx.common)
+        reuse[p.id] = (h, old_files[h] if h in old_files and _reusable(old_files[h], old) else None)
+    todo = [p for p in plans if reuse[p.id][1] is None]
+
+    def shade(p):
+        spot_timings = {}
+        return (*simulate_spot(p, ctx.renderer, ctx.sensor, ctx.noise, ctx.geometry, ctx.window_bound,
+                               ctx.ambient_scale, cfg, ctx.vpl, spot_timings, ctx.sampler), spot_timings)
+
+    with DatasetWriter(out_dir) as writer, ThreadPoolExecutor(max_workers=1) as write_pool, \
+            ThreadPoolExecutor(max_workers=SPOT_THREADS if parallel else 1) as spot_pool:
+        spots, rgb_files, layout, pending, shading, gt_job = [], [], None, [], {}, None
         for k, p in enumerate(plans):
             t0 = time.perf_counter()
-            h = spot_hash(p, ctx.common)
+            h, reused = reuse[p.id]
             rel = transient_relpath(p.id)
-            if h in old_files and _reusable(old_files[h], old):
-                writer.reuse_file(old_files[h], rel)
+            if reused is not None:
+                writer.reuse_file(reused, rel)
                 what, lay = "unchanged, reused", old.manifest.layout
             else:
-                tr, lay = simulate_spot(p, ctx.renderer, ctx.sensor, ctx.noise, ctx.geometry, ctx.window_bound,
-                                        ctx.ambient_scale, cfg, ctx.vpl, timings, ctx.sampler)
+                if parallel:           # keep SPOT_THREADS spots in flight, in order
+                    while len(shading) < SPOT_THREADS and todo:
+                        q = todo.pop(0)
+                        shading[q.id] = spot_pool.submit(shade, q)
+                    if not todo and gt_job is None:     # the ground truth overlaps the last spots
+                        gt_job = spot_pool.submit(_timed_ground_truth, writer, ctx, timings)
+                else:                  # Cycles on this thread overlaps the previous spot's write
+                    result = shade(p)
                 t1 = time.perf_counter()
-                while len(pending) >= WRITE_QUEUE:
+                while len(pending) >= WRITE_QUEUE:    # first: no finished spot waits in memory meanwhile
                     pending.pop(0).result()
-                pending.append(write_pool.submit(_timed_write, writer, p.id, tr, lay.sample_type, timings))
                 _tick(timings, "write_wait_s", t1)
+                tr, lay, spot_timings = shading.pop(p.id).result() if parallel else result
+                result = None
+                for key, v in spot_timings.items():
+                    timings[key] = timings.get(key, 0) + v
+                pending.append(write_pool.submit(_timed_write, writer, p.id, tr, lay.sample_type, timings))
+                del tr
                 what = "rendered"
             if layout is not None and (lay.kind, lay.window_bins) != (layout.kind, layout.window_bins):
                 raise SimulationError(f"internal: spot {p.id} has layout {lay} unlike {layout}")
@@ -425,11 +269,10 @@ def write_dataset(out_dir, plans, ctx: RunContext):
             log(f"spot {k + 1}/{len(plans)} (id {p.id}, {p.name}): l = {np.round(p.first_bounce, 3).tolist()}, "
                 f"albedo {p.albedo:.2f}, {what} in {dt:.2f} s")
         t0 = time.perf_counter()
-        gt = ground_truth.write_ground_truth(writer, ctx.mesh, ctx.sensor, cfg, ctx.objects,
-                                             ctx.room_mesh)   # overlaps the last transient writes
+        gt = gt_job.result() if gt_job is not None else _timed_ground_truth(writer, ctx, timings)
         for f in pending:
             f.result()
-        timings["ground_truth_s"] = time.perf_counter() - t0
+        timings["finish_wait_s"] = time.perf_counter() - t0
         manifest = Manifest(sensor=ctx.sensor, spots=spots, layout=layout, noise=ctx.noise, ground_truth=gt,
                             rgb_files=rgb_files,
                             provenance=Provenance(generator="pipeline/simulate.py", generator_version=SIM_VERSION,
@@ -439,6 +282,13 @@ def write_dataset(out_dir, plans, ctx: RunContext):
                                                          "subpixel_samples": cfg.subpixel_samples,
                                                          "laser_power_w": LASER_POWER_W}))
         writer.commit(manifest)
+
+
+def _timed_ground_truth(writer, ctx: RunContext, timings):
+    t0 = time.perf_counter()
+    gt = ground_truth.write_ground_truth(writer, ctx.mesh, ctx.sensor, ctx.cfg, ctx.objects, ctx.room_mesh)
+    timings["ground_truth_s"] = time.perf_counter() - t0
+    return gt
 
 
 def _timed_write(writer, spot_id, tr, sample_type, timings):
@@ -477,7 +327,7 @@ def simulate_spot(p, renderer, sensor, noise, geometry, g_bound, ambient_scale, 
                 h, w = sensor.height, sensor.width
                 tr, layout = sensor_model.apply_sensor_windows(start.reshape(h, w), window.reshape(h, w, -1), sensor,
                                                                noise, np.random.default_rng([cfg.seed, p.id]),
-                                                               first_bounce_pixel=p.pixel)
+                                                               first_bounce_pixel=p.pixel, in_place=True)
                 _tick(timings, "sensor_model_s", t0)
                 return tr, layout
             expected = windows_to_dense(start, window, sensor.bins).reshape(sensor.height, sensor.width, -1)

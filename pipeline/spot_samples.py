@@ -113,9 +113,10 @@ class SpotSampler:
             pix_parts.append(np.array([r * self.sensor.width + c]))
             path_parts.append(np.array([transient_binning.first_bounce_path(spot.first_bounce, self.o, self.c)]))
             amp_parts.append(np.array([spot.first_bounce_radiance]))
-        start, window, needed = transient_binning.bin_windows(
-            np.concatenate(pix_parts), np.concatenate(path_parts), np.concatenate(amp_parts), self.n_pixels,
-            self.sensor, window_bins)
+        del rad, path                   # (S, P) arrays: freed before binning (memory of parallel spots)
+        samples = [np.concatenate(parts) for parts in (pix_parts, path_parts, amp_parts)]
+        pix_parts.clear(), path_parts.clear(), amp_parts.clear()
+        start, window, needed = transient_binning.bin_windows(*samples, self.n_pixels, self.sensor, window_bins)
         counts["binning_s"] = time.perf_counter() - t0
         return start, window, needed, counts
 

@@ -71,22 +71,26 @@ class SceneRays:
 
     def unoccluded(self, a, b) -> np.ndarray:
         """True where the open segment a -> b (N, 3) is free of triangles."""
-        a = np.asarray(a, np.float64)
-        d = np.asarray(b, np.float64) - a
+        a = np.asarray(a, np.float32)
+        d = np.asarray(b, np.float32) - a
         length = np.sqrt(np.einsum("ij,ij->i", d, d))
         out = np.ones(len(a), bool)
         ok = length > 2 * RAY_EPS_M
-        if not ok.any():
-            return out
-        u = d[ok] / length[ok, None]
-        res = self.scene.run(np.ascontiguousarray(a[ok] + RAY_EPS_M * u, np.float32), np.ascontiguousarray(u, np.float32),
-                             dists=np.ascontiguousarray(length[ok] - 2 * RAY_EPS_M, np.float32), query="OCCLUDED")
+        if not ok.all():
+            if not ok.any():
+                return out
+            a, d, length = a[ok], d[ok], length[ok]
+        d /= length[:, None]                     # unit directions, in place
+        a = a + np.float32(RAY_EPS_M) * d         # a new array: the caller's a stays as it was
+        length -= np.float32(2 * RAY_EPS_M)
+        res = self.scene.run(a, d, dists=length, query="OCCLUDED")
         out[ok] = np.asarray(res) != 0          # embreex: 0 occluded, -1 free
         return out
 
 
 class ShadingSamples:
-    """Spot-independent parts of samples: positions, normals turned to the sensor, albedo, |c - x|."""
+    """Spot-independent parts of samples: positions, normals turned to the sensor, albedo, |c - x|,
+    and the shadow rays' start just off the surface (x + eps n)."""
 
     def __init__(self, x, n_x, rho_x, sensor_centre):
         c = np.asarray(sensor_centre, np.float64)
@@ -97,6 +101,7 @@ class ShadingSamples:
         self.n = np.where(back[:, None], -n, n)
         self.rho = np.asarray(rho_x, np.float32).reshape(-1)
         self.to_camera = np.linalg.norm(to_c, axis=1)
+        self.ray_start = self.x + np.float32(RAY_EPS_M) * self.n
 
 
 def two_bounce_radiance(rays: SceneRays, samples: ShadingSamples, first_bounce, normal_l, rho_l: float,
@@ -109,16 +114,14 @@ def two_bounce_radiance(rays: SceneRays, samples: ShadingSamples, first_bounce, 
     n_l = np.asarray(normal_l, np.float32)
     v = l.astype(np.float32) - samples.x
     r = np.sqrt(np.einsum("ij,ij->i", v, v))
-    safe = r > 1e-6
-    inv_r = np.float32(1.0) / np.where(safe, r, np.float32(1.0))
-    cos_x = np.einsum("ij,ij->i", samples.n, v) * inv_r       # no (N, 3) unit vectors: two dot products
-    cos_l = -(v @ n_l) * inv_r
-    lit = safe & (cos_x > 0) & (cos_l > 0)
-    idx = np.flatnonzero(lit)
-    lit[idx] = rays.unoccluded(samples.x[idx] + RAY_EPS_M * samples.n[idx],
-                               np.broadcast_to(l + RAY_EPS_M * np.asarray(normal_l, np.float64), (len(idx), 3)))
+    cos_x_r = np.einsum("ij,ij->i", samples.n, v)            # cos_x r and cos_l r: no (N, 3) unit vectors
+    cos_l_r = -(v @ n_l)
+    idx = np.flatnonzero((r > 1e-6) & (cos_x_r > 0) & (cos_l_r > 0))
+    free = rays.unoccluded(samples.ray_start[idx], (l + RAY_EPS_M * np.asarray(normal_l, np.float64))[None, :])
+    idx = idx[free]
     rad = np.zeros(len(r), np.float32)
     k = np.float32((rho_l / math.pi) * power_w / math.pi)
-    rad[lit] = k * samples.rho[lit] * cos_x[lit] * cos_l[lit] / (r[lit] * r[lit])
+    r_lit = r[idx]
+    rad[idx] = k * samples.rho[idx] * cos_x_r[idx] * cos_l_r[idx] / (r_lit * r_lit * r_lit * r_lit)
     path = float(np.linalg.norm(l - np.asarray(laser_origin, np.float64))) + r.astype(np.float64) + samples.to_camera
     return rad, path

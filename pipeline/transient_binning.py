@@ -34,7 +34,7 @@ from torch_recon.contract.units import fwhm_to_sigma, ps_to_m
 #: the Gaussian pulse is truncated at this many standard deviations (mass outside: 6e-5)
 PULSE_SUPPORT_SIGMAS = 4.0
 #: samples per chunk of bin_windows (bounds its temporaries to ~BIN_CHUNK x K x 20 bytes)
-BIN_CHUNK = 1 << 18
+BIN_CHUNK = 1 << 16
 #: rows of PulseKernel.tabulated_weights' table over a sample's position within a bin
 TABLE_STEPS = 4096
 #: sub-samples of one pixel up to this many bins apart are summed in a local window first
@@ -355,7 +355,8 @@ def bin_windows(pixels, paths, amps, n_pixels: int, sensor, window_bins: int, *,
         if out_of_range == "raise":
             raise _range_error(paths[outside], kernel, "lit samples")
         keep &= ~outside
-    pixels, paths, amps = pixels[keep], paths[keep], amps[keep]
+    if not keep.all():               # callers usually pass lit samples only: no copies then
+        pixels, paths, amps = pixels[keep], paths[keep], amps[keep]
     start = np.zeros(n_pixels, np.int64)
     window = np.zeros((n_pixels, g), np.float32)
     if not len(pixels):
@@ -383,13 +384,6 @@ def bin_windows(pixels, paths, amps, n_pixels: int, sensor, window_bins: int, *,
         if f.min() < 0 or f.max() + k_sup > t:          # pulse tails past the range: cut
             ok = (f[:, None] + offsets >= 0) & (f[:, None] + offsets < t)
             idx, w = idx[ok], w[ok]
+        # ufunc.at (numpy >= 1.25 fast path) measured faster than bincount into the windows' rows
         np.add.at(flat, idx.ravel(), w.ravel().astype(np.float32))
-    return start, window, needed
-    w *= amps[:, None]
-    idx = (pixels * g - start[pixels] + first)[:, None] + np.arange(k_sup)[None, :]
-    if first.min() < 0 or first.max() + k_sup > t:          # pulse tails past the range: cut
-        bins = first[:, None] + np.arange(k_sup)[None, :]
-        ok = (bins >= 0) & (bins < t)
-        idx, w = idx[ok], w[ok]
-    window[:] = np.bincount(idx.ravel(), weights=w.ravel(), minlength=n_pixels * g).reshape(n_pixels, g)
     return start, window, needed

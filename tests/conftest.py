@@ -1,4 +1,4 @@
-"""Shared fixtures. Areas' own fixtures live in their test files or *_fixtures.py modules."""
+"""Shared pytest fixtures. Areas' own helpers live in their test files or in tests/support/ (plain modules)."""
 
 from __future__ import annotations
 

@@ -1,16 +1,12 @@
-"""The reliability contract, one row of tests/fault_cases.py per test: exit code, one-line message naming
+"""The reliability contract, one row of tests/support/fault_cases.py per test: exit code, one-line message naming
 the file / field / setting, and the files left behind (docs/reliability.md)."""
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))
-from fault_cases import CASES  # noqa: E402
-from fault_workspace import (FaultData, Workspace, message_lines, run_recon, run_simulate,  # noqa: E402
+from tests.support.fault_cases import CASES
+from tests.support.fault_workspace import (FaultData, Workspace, message_lines, run_recon, run_simulate,
                              run_simulate_batch)
 
 assert len({c.name for c in CASES}) == len(CASES), "duplicate case names"

@@ -1,7 +1,7 @@
 """Numerical stress, fast subset (CI): adversarial inputs through simulator, preprocessing, fit, mesh, evaluation.
 
 One simulator worker runs every simulator case of the subset (Cycles start-up paid once); the
-whole module takes about 45 s on 2 cores. Cases and their checks: tests/stress_cases.py.
+whole module takes about 45 s on 2 cores. Cases and their checks: tests/support/stress_cases.py.
 A case failing because of a reported bug is xfail (strict: it fails once fixed).
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import pytest
 
-from stress_fixtures import case_params, check_case, run_by_name, select
+from tests.support.stress_fixtures import case_params, check_case, run_by_name, select
 
 CASES = select(quick=True)
 

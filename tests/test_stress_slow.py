@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from stress_fixtures import case_params, check_case, run_by_name, select
+from tests.support.stress_fixtures import case_params, check_case, run_by_name, select
 
 pytestmark = pytest.mark.slow
 _QUICK = {c.name for c in select(quick=True)}

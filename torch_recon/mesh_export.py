@@ -10,7 +10,7 @@ frame; larger values are inside (occupancy probability, density).
 
 Frames on disk, chosen so that Blender's importers with their DEFAULT settings
 put the mesh back where it was reconstructed (checked with bpy 5.0.1 in
-tests/test_eval_mesh_export.py when bpy is available):
+tests/torch_recon/test_eval_mesh_export.py when bpy is available):
 - .ply: Blender world coordinates as they are (the PLY importer's defaults are
   forward Y, up Z: no conversion);
 - .glb / .gltf: glTF is Y-up; we write (x, z, -y) and Blender's glTF importer

@@ -18,9 +18,11 @@ numpy only (no bpy, no torch).
 from __future__ import annotations
 
 import copy
+from pathlib import Path
 
 import numpy as np
 
+from .contract.dataset import DatasetError
 from .contract.dataset.transient import Transient
 from .measurements import Measurements
 
@@ -50,21 +52,32 @@ def srgb_to_linear(v: np.ndarray) -> np.ndarray:
     return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
 
 
-def read_rgb_luminance(path) -> np.ndarray:
+def read_rgb_luminance(path, field: str = "rgb_files") -> np.ndarray:
     """(H, W) linear luminance (Rec. 709 weights) of an 8/16-bit sRGB PNG such as the simulator's
-    `rgb_files` (pipeline/simulate.py --rgb). 8-bit PNGs quantise dark pixels: prefer the transient sum."""
+    `rgb_files` (pipeline/simulate.py --rgb). 8-bit PNGs quantise dark pixels: prefer the transient sum.
+
+    A file that is not such an image raises DatasetError naming the file and `field` (the manifest field
+    that lists it); a missing or unreadable file raises the OSError, with its path.
+    """
     from skimage.io import imread
-    img = np.asarray(imread(str(path)))
+    path = Path(path)
+    with open(path, "rb"):            # missing / unreadable: the OSError names the path
+        pass
+    try:
+        img = np.asarray(imread(str(path)))
+    except (OSError, ValueError, SyntaxError) as exc:    # Pillow: UnidentifiedImageError (an OSError), bad chunks
+        raise DatasetError(str(path), field, f"not a readable PNG image ({type(exc).__name__}: "
+                                             f"{str(exc).splitlines()[0] if str(exc) else 'no detail'})") from None
     if img.dtype == np.uint8:
         v = img / 255.0
     elif img.dtype == np.uint16:
         v = img / 65535.0
     else:
-        raise ValueError(f"{path}: expected an 8- or 16-bit PNG, got dtype {img.dtype}")
+        raise DatasetError(str(path), field, f"expected an 8- or 16-bit PNG, got samples of type {img.dtype}")
     if v.ndim == 2:
         return srgb_to_linear(v)
     if v.ndim != 3 or v.shape[2] not in (3, 4):
-        raise ValueError(f"{path}: expected a grey, RGB or RGBA image, got shape {img.shape}")
+        raise DatasetError(str(path), field, f"expected a grey, RGB or RGBA image, got shape {img.shape}")
     lin = srgb_to_linear(v[..., :3])
     return lin @ np.array([0.2126, 0.7152, 0.0722])
 

@@ -28,6 +28,14 @@ def has_settings(cls, context) -> bool:
     return True
 
 
+class NeedsLidarSettings:
+    """Mixin (before bpy.types.Operator) of every operator that acts on the scene's lidar settings."""
+
+    @classmethod
+    def poll(cls, context):
+        return has_settings(cls, context)
+
+
 def resolve_path(raw: str, what: str, context=None) -> str:
     """Absolute path from a panel path; '//' paths need a saved .blend or a default output folder."""
     raw = (raw or "").strip()

@@ -3,19 +3,15 @@
 import bpy
 
 from ..spot_geometry import SpotError, add_spot, aim_laser
-from ._common import has_settings
+from ._common import NeedsLidarSettings
 
 
-class PLATOLIDAR_OT_add_spot_cursor(bpy.types.Operator):
+class PLATOLIDAR_OT_add_spot_cursor(NeedsLidarSettings, bpy.types.Operator):
     """Aim the laser from its origin at the 3D cursor and add a spot on the surface it hits"""
 
     bl_idname = "platolidar.add_spot_cursor"
     bl_label = "Add Spot at Cursor"
     bl_options = {"REGISTER", "UNDO"}
-
-    @classmethod
-    def poll(cls, context):
-        return has_settings(cls, context)
 
     def execute(self, context):
         scene = context.scene

@@ -10,7 +10,7 @@ import os
 import bpy
 
 from .. import jobs
-from ._common import UserError, dataset_dir, has_settings, reconstruction_python, resolve_path
+from ._common import NeedsLidarSettings, UserError, dataset_dir, reconstruction_python, resolve_path
 from ._job_base import JobOperatorMixin
 
 #: (report.json key, label, format) shown in the panel
@@ -28,7 +28,7 @@ def key_numbers(report: dict) -> list:
     return out
 
 
-class PLATOLIDAR_OT_evaluate(JobOperatorMixin, bpy.types.Operator):
+class PLATOLIDAR_OT_evaluate(NeedsLidarSettings, JobOperatorMixin, bpy.types.Operator):
     """Compare the reconstruction with the dataset's ground truth: metrics and a summary page (Esc cancels)"""
 
     bl_idname = "platolidar.evaluate"
@@ -36,10 +36,6 @@ class PLATOLIDAR_OT_evaluate(JobOperatorMixin, bpy.types.Operator):
     bl_options = {"REGISTER"}
 
     job_kind = "evaluation"
-
-    @classmethod
-    def poll(cls, context):
-        return has_settings(cls, context)
 
     def build_job(self, context):
         s = context.scene.platolidar
@@ -67,16 +63,12 @@ class PLATOLIDAR_OT_evaluate(JobOperatorMixin, bpy.types.Operator):
         return {"FINISHED"}
 
 
-class PLATOLIDAR_OT_open_summary(bpy.types.Operator):
+class PLATOLIDAR_OT_open_summary(NeedsLidarSettings, bpy.types.Operator):
     """Open the evaluation's summary page (renders, error images, metrics, times) in the web browser"""
 
     bl_idname = "platolidar.open_summary"
     bl_label = "Open Summary"
     bl_options = {"REGISTER"}
-
-    @classmethod
-    def poll(cls, context):
-        return has_settings(cls, context)
 
     def execute(self, context):
         path = context.scene.platolidar.result_summary

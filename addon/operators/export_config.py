@@ -6,10 +6,10 @@ import bpy
 from bpy.props import StringProperty
 from bpy_extras.io_utils import ExportHelper
 
-from ._common import UserError, has_settings, validated_config
+from ._common import NeedsLidarSettings, UserError, validated_config
 
 
-class PLATOLIDAR_OT_export_config(bpy.types.Operator, ExportHelper):
+class PLATOLIDAR_OT_export_config(NeedsLidarSettings, bpy.types.Operator, ExportHelper):
     """Write the spots and settings as JSON (pipeline.config.SimulationConfig) for a headless run"""
 
     bl_idname = "platolidar.export_config"
@@ -18,10 +18,6 @@ class PLATOLIDAR_OT_export_config(bpy.types.Operator, ExportHelper):
 
     filename_ext = ".json"
     filter_glob: StringProperty(default="*.json", options={"HIDDEN"})
-
-    @classmethod
-    def poll(cls, context):
-        return has_settings(cls, context)
 
     def execute(self, context):
         try:

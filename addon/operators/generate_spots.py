@@ -4,10 +4,10 @@ import bpy
 from bpy.props import BoolProperty
 
 from ..spot_geometry import SpotError, add_spot, generate_spots
-from ._common import has_settings
+from ._common import NeedsLidarSettings
 
 
-class PLATOLIDAR_OT_generate_spots(bpy.types.Operator):
+class PLATOLIDAR_OT_generate_spots(NeedsLidarSettings, bpy.types.Operator):
     """Random candidate spots in the camera's view (seeded), narrowed to the most spread-out ones"""
 
     bl_idname = "platolidar.generate_spots"
@@ -15,10 +15,6 @@ class PLATOLIDAR_OT_generate_spots(bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     replace: BoolProperty(name="Replace", default=True, description="Replace the listed spots")
-
-    @classmethod
-    def poll(cls, context):
-        return has_settings(cls, context)
 
     def execute(self, context):
         scene = context.scene

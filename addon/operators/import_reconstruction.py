@@ -3,19 +3,15 @@
 import bpy
 
 from .. import importing
-from ._common import UserError, has_settings, resolve_path
+from ._common import NeedsLidarSettings, UserError, resolve_path
 
 
-class PLATOLIDAR_OT_import_reconstruction(bpy.types.Operator):
+class PLATOLIDAR_OT_import_reconstruction(NeedsLidarSettings, bpy.types.Operator):
     """Load the reconstructed mesh (.ply/.obj, world frame) into the 'Reconstruction' collection"""
 
     bl_idname = "platolidar.import_reconstruction"
     bl_label = "Import Reconstruction"
     bl_options = {"REGISTER", "UNDO"}
-
-    @classmethod
-    def poll(cls, context):
-        return has_settings(cls, context)
 
     def execute(self, context):
         s = context.scene.platolidar

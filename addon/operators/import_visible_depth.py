@@ -4,10 +4,10 @@ import bpy
 from bpy.props import FloatProperty
 
 from .. import importing
-from ._common import UserError, has_settings, resolve_path
+from ._common import NeedsLidarSettings, UserError, resolve_path
 
 
-class PLATOLIDAR_OT_import_visible_depth(bpy.types.Operator):
+class PLATOLIDAR_OT_import_visible_depth(NeedsLidarSettings, bpy.types.Operator):
     """Show the visible depth (measurements .npz from torch_recon) as points in the 'Reconstruction' collection"""
 
     bl_idname = "platolidar.import_visible_depth"
@@ -15,10 +15,6 @@ class PLATOLIDAR_OT_import_visible_depth(bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     radius: FloatProperty(name="Point Radius", default=0.005, min=1e-5, subtype="DISTANCE", unit="LENGTH")
-
-    @classmethod
-    def poll(cls, context):
-        return has_settings(cls, context)
 
     def execute(self, context):
         s = context.scene.platolidar

@@ -5,10 +5,10 @@ from bpy.props import StringProperty
 from bpy_extras.io_utils import ImportHelper
 
 from ..config_io import PlatolidarError, SimulationConfig, config_to_settings
-from ._common import has_settings
+from ._common import NeedsLidarSettings
 
 
-class PLATOLIDAR_OT_load_config(bpy.types.Operator, ImportHelper):
+class PLATOLIDAR_OT_load_config(NeedsLidarSettings, bpy.types.Operator, ImportHelper):
     """Replace the panel's settings and spots with those of a settings JSON file"""
 
     bl_idname = "platolidar.load_config"
@@ -17,10 +17,6 @@ class PLATOLIDAR_OT_load_config(bpy.types.Operator, ImportHelper):
 
     filename_ext = ".json"
     filter_glob: StringProperty(default="*.json", options={"HIDDEN"})
-
-    @classmethod
-    def poll(cls, context):
-        return has_settings(cls, context)
 
     def execute(self, context):
         try:

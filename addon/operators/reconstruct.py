@@ -6,7 +6,7 @@ import os
 import bpy
 
 from .. import jobs
-from ._common import UserError, dataset_dir, has_settings, reconstruction_python, resolve_path
+from ._common import NeedsLidarSettings, UserError, dataset_dir, reconstruction_python, resolve_path
 from ._job_base import JobOperatorMixin
 
 MESH_EXTENSIONS = (".ply", ".obj", ".glb")  # preference order when written together
@@ -37,7 +37,7 @@ def reported_mesh(folder: str) -> str | None:
     return files[0] if files else newest_mesh(folder)
 
 
-class PLATOLIDAR_OT_reconstruct(JobOperatorMixin, bpy.types.Operator):
+class PLATOLIDAR_OT_reconstruct(NeedsLidarSettings, JobOperatorMixin, bpy.types.Operator):
     """Fit geometry to the dataset with torch_recon in the external Python (Esc cancels)"""
 
     bl_idname = "platolidar.reconstruct"
@@ -45,10 +45,6 @@ class PLATOLIDAR_OT_reconstruct(JobOperatorMixin, bpy.types.Operator):
     bl_options = {"REGISTER"}
 
     job_kind = "reconstruction"
-
-    @classmethod
-    def poll(cls, context):
-        return has_settings(cls, context)
 
     def build_job(self, context):
         s = context.scene.platolidar

@@ -8,7 +8,7 @@ import bpy
 
 from .. import _project, jobs
 from ..preferences import get_preferences
-from ._common import UserError, has_settings, resolve_path, validated_config
+from ._common import NeedsLidarSettings, UserError, resolve_path, validated_config
 from ._job_base import JobOperatorMixin
 
 
@@ -20,7 +20,7 @@ def blender_binary(context) -> str:
     return bpy.app.binary_path or ""
 
 
-class PLATOLIDAR_OT_simulate(JobOperatorMixin, bpy.types.Operator):
+class PLATOLIDAR_OT_simulate(NeedsLidarSettings, JobOperatorMixin, bpy.types.Operator):
     """Write the lidar dataset: pipeline/simulate.py in a background Blender (Esc cancels)"""
 
     bl_idname = "platolidar.simulate"
@@ -28,10 +28,6 @@ class PLATOLIDAR_OT_simulate(JobOperatorMixin, bpy.types.Operator):
     bl_options = {"REGISTER"}
 
     job_kind = "simulation"
-
-    @classmethod
-    def poll(cls, context):
-        return has_settings(cls, context)
 
     def build_job(self, context):
         s = context.scene.platolidar

@@ -134,7 +134,7 @@ def test_cli_list_and_bad_set(capsys):
 def test_integrate_bins_sums_adjacent_bins(tmp_path):
     """The temporal ablation's bin integration: coarse bin j = sum of fine bins f*j .. f*j+f-1; GT carried over."""
     import numpy as np
-    from conftest import make_synthetic_dataset
+    from tests.conftest import make_synthetic_dataset
     from torch_recon.contract.dataset import load_dataset
 
     make_synthetic_dataset(tmp_path / "src", bins=40, window_bins=8, spots=2)

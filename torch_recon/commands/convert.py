@@ -56,6 +56,17 @@ PLATONERF_ENTRIES = ("transforms_train.json", "transforms_test.json", "platonerf
                      "transients", "ground_truth", "*.json", "*.npy")
 
 
+def _given_keys(args) -> set:
+    """Settings the user gave (flag, --set or --config), as opposed to defaults."""
+    from ..contract.settings import load_file, parse_assignments
+
+    given = {key for dest, key in getattr(args, "_settings_flags", {}).items() if getattr(args, dest, None) is not None}
+    given |= set(parse_assignments(getattr(args, "set_values", None)))
+    if getattr(args, "config", None):
+        given |= set(load_file(args.config))
+    return given
+
+
 def run(args) -> int:
     from ..contract.dataset import load_dataset
     from ..contract.dataset.platonerf_layout import export_platonerf, import_platonerf
@@ -64,8 +75,12 @@ def run(args) -> int:
 
     s = from_args(ConvertSettings, args)
     if args.direction == "from-platonerf":
-        ds = import_platonerf(args.src, args.dst, bin_width_ps=s.bin_ps, bin_width_m=s.bin_m,
-                              pulse_fwhm_ps=s.pulse_fwhm_ps, window_bins=s.window_bins,
+        # only what the user gave reaches the import: an export of ours refuses a width that contradicts it
+        given = _given_keys(args)
+        ds = import_platonerf(args.src, args.dst,
+                              **{name: getattr(s, key) if key in given else None
+                                 for name, key in (("bin_width_ps", "bin_ps"), ("bin_width_m", "bin_m"),
+                                                   ("pulse_fwhm_ps", "pulse_fwhm_ps"), ("window_bins", "window_bins"))},
                               ignore=None if s.ignore is None else list(s.ignore), train_depth=s.train_depth)
         gt = ds.manifest.ground_truth
         print(f"imported {len(ds.manifest.spots)} spots ({len(ds.manifest.enabled_spots)} enabled)"

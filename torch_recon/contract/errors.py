@@ -40,6 +40,10 @@ class UnconstrainedMeasurementsError(MeasurementsError):
     no visible depth, every shadow empty): refused rather than returning an empty mesh."""
 
 
+class PreprocessError(PlatolidarError, ValueError):
+    """Input the preprocessing cannot use; the message names the spot and what was expected."""
+
+
 class EvaluationError(PlatolidarError, ValueError):
     """Evaluation impossible with what was given (e.g. ground truth without a surface in view)."""
 

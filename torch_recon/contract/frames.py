@@ -1,4 +1,4 @@
-"""Frames and cameras, in one module (round-trip tested in tests/test_frames.py).
+"""Frames and cameras, in one module (round-trip tested in tests/torch_recon/contract/test_frames.py).
 
 The project's one frame is Blender's world: right-handed, Z up, metres.
 Cameras use the Blender/OpenGL convention: the camera looks down its local -Z,

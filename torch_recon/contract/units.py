@@ -1,4 +1,4 @@
-"""Unit conversions, in one place (round-trip tested in tests/test_units.py).
+"""Unit conversions, in one place (round-trip tested in tests/torch_recon/contract/test_units.py).
 
 Inside the code: metres for lengths and optical path, radians for angles.
 People type picoseconds and degrees; those are converted here and nowhere else.

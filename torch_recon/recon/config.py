@@ -77,6 +77,14 @@ class FastConfig:
     rays_per_batch: int = 4096
     steps: int = 100                  # cave-chair 128 (session 5): 100 steps F@2cm 0.834, hidden R 0.764, fewer holes;
                                       # 200: 0.845 / 0.721 and more holes in walls and floor; half the time
+    # --- start field outside the sensor's view and mesh (recon/init.py, recon/unobserved.py) ---
+    complete_unobserved: bool = True  # outside the view the planes bounding the observation continue (walls,
+                                      # floor, ceiling next to the sensor); False: nothing is put there
+    plane_min_support: float = 0.03   # a plane needs this fraction of the visible points (RANSAC inliers)
+    plane_tolerance_voxels: float = 0.5  # RANSAC inlier distance; a bounding plane has no point or spot
+                                         # more than twice this behind it
+    plane_free_band_voxels: float = 2.0  # the mesh keeps faces facing completed empty space this close
+                                         # to a completed plane
 
 
 @dataclass

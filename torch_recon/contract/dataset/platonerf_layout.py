@@ -235,12 +235,34 @@ def _vec(fr: dict, key: str, f: str, i: int) -> np.ndarray:
     return v
 
 
+#: import options an export of ours cannot take: its ``platolidar`` block fixes them (option -> flag, field)
+FIXED_BY_OUR_EXPORT = {"bin_width_ps": ("--bin-ps", "sensor.bin_width_ps"),
+                       "bin_width_m": ("--bin-m", "sensor.bin_width_m"),
+                       "pulse_fwhm_ps": ("--pulse-fwhm-ps", "sensor.pulse.fwhm_ps"),
+                       "window_bins": ("--window-bins", "layout.window_bins")}
+
+
+def _refuse_fixed_options(f: str, given: dict, sensor: SensorSpec, layout: TransientLayout) -> None:
+    """An export of ours records its bins, pulse and window: an option saying otherwise is refused (naming
+    the flag), never silently ignored; one that agrees with the record is harmless."""
+    recorded = {"bin_width_ps": sensor.bin_width_ps, "bin_width_m": sensor.bin_width_m,
+                "pulse_fwhm_ps": sensor.pulse.fwhm_ps, "window_bins": layout.window_bins}
+    for key, value in given.items():
+        if value is not None and not np.isclose(float(value), float(recorded[key]), rtol=1e-9, atol=0.0):
+            flag, field = FIXED_BY_OUR_EXPORT[key]
+            raise DatasetError(f, f"platolidar.{field}", f"{flag} {value} contradicts this export of ours, which "
+                                                        f"records {recorded[key]}: leave {flag} out")
+
+
 def import_platonerf(src_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
-                     bin_width_ps: float = PAPER_BIN_WIDTH_PS, bin_width_m: float = PAPER_BIN_WIDTH_M,
-                     start_m: float = 0.0, pulse_fwhm_ps: float = PAPER_BIN_WIDTH_PS,
+                     bin_width_ps: float | None = None, bin_width_m: float | None = None,
+                     start_m: float = 0.0, pulse_fwhm_ps: float | None = None,
                      window_bins: int | None = None, ignore=None, train_depth=None) -> Dataset:
     """Convert a PlatoNeRF-layout directory into a dataset of ours at `out_dir` (atomic).
 
+    bin_width_ps / bin_width_m / pulse_fwhm_ps: None takes the paper's values (their cubes do not record
+    them); window_bins None stores dense cubes. An export of ours (a ``platolidar`` block) records all four:
+    a value given here that differs from the record is refused (FIXED_BY_OUR_EXPORT).
     ignore: frame indices to import as disabled spots (default: the JSON's ``ignore``, else none);
     ignored frames without a cube are skipped. train_depth: a .npy range image of the train view.
     """
@@ -308,13 +330,17 @@ def import_platonerf(src_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
         if (sensor.height, sensor.width, sensor.bins) != (h, w, t):
             raise DatasetError(f, "platolidar.sensor", f"says {sensor.height}x{sensor.width}x{sensor.bins}, "
                                                        f"cubes are {h}x{w}x{t} after {pad} padding bins")
+        _refuse_fixed_options(f, {"bin_width_ps": bin_width_ps, "bin_width_m": bin_width_m,
+                                  "pulse_fwhm_ps": pulse_fwhm_ps, "window_bins": window_bins}, sensor, layout)
     else:
         g = t if window_bins is None else int(window_bins)
         sensor = SensorSpec(width=w, height=h, fov_rad=deg_to_rad(angle), fov_axis="x",
                             camera_to_world=paper_to_blender_c2w(c2w0).tolist(),
                             laser_origin=platonerf_train_to_blender_points(items[0][2]).tolist(),
-                            pulse=PulseSpec("gaussian", pulse_fwhm_ps), bin_width_ps=bin_width_ps,
-                            bin_width_m=bin_width_m, bins=t, start_m=start_m,
+                            pulse=PulseSpec("gaussian", PAPER_BIN_WIDTH_PS if pulse_fwhm_ps is None else pulse_fwhm_ps),
+                            bin_width_ps=PAPER_BIN_WIDTH_PS if bin_width_ps is None else bin_width_ps,
+                            bin_width_m=PAPER_BIN_WIDTH_M if bin_width_m is None else bin_width_m,
+                            bins=t, start_m=start_m,
                             time_gate=TimeGate(enabled=g < t, window_bins=g if g < t else 0))
         layout = TransientLayout("dense" if g == t else "windowed", g, sample_type)
         noise = NoiseSpec()
