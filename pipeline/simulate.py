@@ -151,6 +151,16 @@ def flag_values(args, cfg) -> dict:
     return values
 
 
+def check_options(args) -> None:
+    """Each flag's and --set value's type and range, before a scene is built (relations: load_config)."""
+    from torch_recon.contract.settings import check_value, find_spec, parse_assignments
+    from torch_recon.contract.simulation import SimulationConfig
+
+    for key, raw in {**flag_values(args, SimulationConfig()), **parse_assignments(args.set_values)}.items():
+        if key != "spots":
+            check_value(find_spec(SimulationConfig, key), raw)
+
+
 def spots_requested(args) -> bool:
     """--spots K given: keep K of the scene's own spots too (not only of random ones)."""
     return any(key == "random_keep" and getattr(args, d) is not None for d, key in args._settings_flags.items())
@@ -185,6 +195,7 @@ def simulate(args) -> int:
     from pipeline import simulator
     from torch_recon.contract import scenes
 
+    check_options(args)
     if args.example and args.blend:
         raise simulator.SimulationError("give either a .blend or --example, not both")
     if args.example:

@@ -7,7 +7,7 @@ from dataclasses import fields
 
 import pytest
 
-from pipeline.simulate import SPECIAL_FIELDS, build_parser, load_config, parse_args
+from pipeline.simulate import SPECIAL_FIELDS, build_parser, check_options, load_config, parse_args
 from torch_recon.contract.errors import SettingsError
 from torch_recon.contract.settings import specs
 from torch_recon.contract.simulation import SimulationConfig
@@ -122,3 +122,10 @@ def test_contradicting_or_unknown_flags_exit_2(argv, capsys):
     with pytest.raises(SystemExit) as exc:
         parse_args(["--out", "x", *argv])
     assert exc.value.code == 2 and "error:" in capsys.readouterr().err
+
+
+def test_values_are_checked_before_a_scene_is_built():
+    for argv in (["--bins", "abc"], ["--set", "bins=0"], ["--set", "colour=red"], ["--adaptive", "x"]):
+        with pytest.raises(SettingsError):
+            check_options(parse_args(["--out", "x", *argv]))
+    check_options(parse_args(["--out", "x", "--spots", "40", "--set", "seed=2"]))   # relations: later
