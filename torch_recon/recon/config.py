@@ -70,6 +70,14 @@ class FastConfig:
                                       # unchanged, 0.5 tore holes (docs/reconstruction.md, measured)
     rays_per_batch: int = 4096
     steps: int = 200                  # 400 at lr 0.2 gained 0.0004 m L1 / 0.03 dB over 200 (cave-chair 128 px)
+    # --- start field outside the sensor's view and mesh (recon/init.py, recon/unobserved.py) ---
+    complete_unobserved: bool = True  # outside the view the planes bounding the observation continue (walls,
+                                      # floor, ceiling next to the sensor); False: nothing is put there
+    plane_min_support: float = 0.03   # a plane needs this fraction of the visible points (RANSAC inliers)
+    plane_tolerance_voxels: float = 0.5  # RANSAC inlier distance; a bounding plane has no point or spot
+                                         # more than twice this behind it
+    plane_free_band_voxels: float = 2.0  # the mesh keeps faces facing completed empty space this close
+                                         # to a completed plane
 
 
 @dataclass

@@ -4,11 +4,13 @@ Evidence, voxel by voxel (priority top to bottom):
 1. the voxel holding a visible surface point x = c + d u (closed-form depth d): occupied;
 2. crossed by a camera ray before its visible surface: free;
 3. crossed by at least `carve_min_lit` lit secondary rays x -> l: free (shadow carving);
-4. otherwise (hidden from the sensor and never lit through): occupied, the shadow hull of BF Lidar.
+4. otherwise, inside the sensor's view (hidden from the sensor and never lit through): occupied, the
+   shadow hull of BF Lidar; outside the view (no measurement reaches it): the planes bounding the
+   observation continue there (`unobserved.py`).
 Near visible surfaces the raw density is a ramp in the point-to-plane signed distance to the measured
 surface (normals from the depth image), so planar walls start planar at sub-voxel accuracy.
 Which voxels are known free (2 and 3) is kept: the mesh exporter reports only surfaces that face
-measured free space (`free_evidence`); nothing is invented where nothing was measured.
+measured free space (`free_evidence`) or completed empty space next to a completed plane.
 """
 
 from __future__ import annotations
@@ -104,13 +106,8 @@ def _depth_normals(x: np.ndarray, valid: np.ndarray, c: np.ndarray, max_jump: np
     return best_n
 
 
-def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: float = 2.0, k: int = 4):
-    """Point-to-plane signed distance (m, + behind the surface) of voxel centres within `half_width_voxels`
-    of the visible surface (NaN elsewhere): the mean over the k nearest measured points of their tangent
-    planes, leaving out planes that disagree with the nearest by more than a voxel (another surface).
-    Planar walls give an exactly linear field, so the iso-surface is flat (no grid-aligned steps)."""
-    from scipy.spatial import cKDTree
-
+def visible_surface(data: RayData, box: GridBox):
+    """Visible surface points (N, 3) float64 and their unit normals facing the sensor (from the depth image)."""
     h, w = data.height, data.width
     c = data.sensor_origin.cpu().numpy().astype(np.float64)
     d = data.visible_depth.cpu().numpy().reshape(h, w).astype(np.float64)
@@ -121,7 +118,19 @@ def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: floa
     # steps up to 8 pixel footprints (a surface at 7 degrees grazing); the plane support test picks the side
     max_jump = 8.0 * pix_angle * np.where(valid, d, 0.0) + box.voxel
     normals = _depth_normals(x, valid, c, max_jump, tol=0.25 * box.voxel)
-    pts, nrm = x[valid], normals[valid]
+    return x[valid], normals[valid]
+
+
+def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: float = 2.0, k: int = 4,
+                            surface=None):
+    """Point-to-plane signed distance (m, + behind the surface) of voxel centres within `half_width_voxels`
+    of the visible surface (NaN elsewhere): the mean over the k nearest measured points of their tangent
+    planes, leaving out planes that disagree with the nearest by more than a voxel (another surface).
+    Planar walls give an exactly linear field, so the iso-surface is flat (no grid-aligned steps).
+    surface: (points, normals) from `visible_surface` when already computed."""
+    from scipy.spatial import cKDTree
+
+    pts, nrm = visible_surface(data, box) if surface is None else surface
     sd = np.full(box.shape, np.nan, np.float32)
     if len(pts) == 0:
         return torch.from_numpy(sd)
@@ -298,17 +307,20 @@ def in_view(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_ax
 
 
 def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0.0, view=None):
-    """The fast mode's starting field (cfg: FastConfig) and the voxels known to be free (nx, ny, nz) bool.
+    """The fast mode's starting field (cfg: FastConfig) and the voxels the mesh may face (nx, ny, nz) bool.
 
     Known free (seen through by the sensor or crossed by a lit secondary ray): empty. Everything else
     in the sensor's view (`view`, bool (nx, ny, nz)) is occupied (the shadow hull: every shadowed ray
-    stays blocked, every lit ray stays clear); outside the view nothing was measured and nothing is
-    put (empty, but not known free, so no surface is reported against it); the
-    optimisation and the mesh exporter (which reports only surfaces facing known free space) decide
-    the rest. Near visible surfaces a linear ramp in the point-to-plane signed distance puts the
-    surface at the measured depth to a fraction of a voxel (trilinear interpolation keeps a linear
-    ramp linear); behind a visible surface a lit voxel stays free (thin parts keep their thickness).
+    stays blocked, every lit ray stays clear). Outside the view nothing was measured: with
+    `cfg.complete_unobserved` the planes bounding the observation continue there (`unobserved.py`),
+    otherwise it stays empty. The mesh exporter reports only surfaces facing known free space or the
+    completed empty space next to a completed plane (the second result). Near visible surfaces a
+    linear ramp in the point-to-plane signed distance puts the surface at the measured depth to a
+    fraction of a voxel (trilinear interpolation keeps a linear ramp linear); behind a visible surface
+    a lit voxel stays free (thin parts keep their thickness).
     """
+    from .unobserved import bounding_planes, shell_signed_distance
+
     label, _ = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m,
                              cfg.step_voxels, cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
                              explain_shadow_rays=cfg.explain_shadows, explain_camera_free=cfg.explain_camera_free)
@@ -316,10 +328,22 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     dev = data.pixel_dirs.device
     occupied = ~free if view is None else ~free & view
     raw = torch.where(occupied, torch.tensor(cfg.raw_occupied, device=dev), torch.tensor(cfg.raw_free, device=dev))
+    b = surface_offset(cfg.density_scale, box.voxel, max(cfg.surface_slope, 1e-3))
+    ramp = lambda sd: ((cfg.surface_slope * sd / box.voxel + b) if cfg.surface_slope > 0  # noqa: E731
+                       else torch.where(sd > 0, cfg.raw_occupied, cfg.raw_free)).clamp(cfg.raw_free, cfg.raw_occupied)
+    surface = visible_surface(data, box)
+    mesh_free = free
+    if cfg.complete_unobserved and view is not None:
+        planes = bounding_planes(*surface, data.sensor_origin.cpu().numpy(), data.spot_points.cpu().numpy(),
+                                 cfg.plane_tolerance_voxels * box.voxel, cfg.plane_min_support)
+        unobserved = ~free & ~view
+        shell = shell_signed_distance(box.centres().double(), planes).float().to(dev)
+        raw = torch.where(unobserved, ramp(shell), raw)
+        # completed empty space counts as free for the mesh only next to a completed plane: the shadow
+        # hull's boundary at the edge of the view stays unreported
+        mesh_free = free | (unobserved & (shell < 0) & (shell > -cfg.plane_free_band_voxels * box.voxel))
     if cfg.surface_slope > 0:
-        sd = surface_signed_distance(data, box, cfg.surface_half_width_voxels).to(dev)
-        b = surface_offset(cfg.density_scale, box.voxel, cfg.surface_slope)
-        ramp = (cfg.surface_slope * sd / box.voxel + b).clamp(cfg.raw_free, cfg.raw_occupied)
+        sd = surface_signed_distance(data, box, cfg.surface_half_width_voxels, surface=surface).to(dev)
         near = torch.isfinite(sd) & ((label != 3) | (sd <= 0.5 * box.voxel)) & (label != RESTORED)
-        raw = torch.where(near, ramp, raw)
-    return DensityGrid.from_xyz(box, raw.float(), cfg.density_scale), free
+        raw = torch.where(near, ramp(sd), raw)
+    return DensityGrid.from_xyz(box, raw.float(), cfg.density_scale), mesh_free
