@@ -8,8 +8,10 @@ With the bpy module (Blender as a Python module, e.g. the project's .venv):
 
 Settings, later ones winning: SimulationConfig defaults < the settings the add-on stored
 in the .blend (Text datablock torch_recon.contract.simulation.CONFIG_TEXT_NAME; for --example, the
-example's own) < --config FILE.json < command-line options. Options go through
-SimulationConfig.validate(), so an error names the setting.
+example's own) < --config FILE (JSON, or TOML by suffix) < flags < --set KEY=VALUE. The flags are
+generated from SimulationConfig (one per setting, its short aliases in SETTINGS_META, e.g. --spots for
+random_keep), plus --resolution, --time-gate W, --test-views, --no-gt and --spot-list, which set several
+settings at once. Every value is type- and range-checked, and an error names the setting.
 
 Inside Blender's own Python, OpenEXR / trimesh / scipy may be missing; then the
 project's .venv site-packages (python3.11) is appended to sys.path AFTER Blender's own
@@ -24,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import glob
+from dataclasses import fields
 import os
 import sys
 from pathlib import Path
@@ -50,7 +53,19 @@ def _argv() -> list:
     return sys.argv[1:]
 
 
+#: fields whose command-line form is a special case below (the rest get a flag from SimulationConfig):
+#: time_gate is `--time-gate W` (a window in bins, 0: off); spots is `--spot-list 'x,y,z;...'`.
+SPECIAL_FIELDS = ("time_gate", "spots")
+
+
 def build_parser() -> argparse.ArgumentParser:
+    """Flags generated from SimulationConfig (contract/settings.py: name, aliases, type, unit, default,
+    help), plus the few that set several settings at once (--resolution, --time-gate, --test-views, --no-gt,
+    --spot-list). Which source wins: load_config."""
+    from torch_recon.contract.settings import add_arguments
+    from torch_recon.contract.simulation import SimulationConfig
+
+    d = SimulationConfig()
     ap = argparse.ArgumentParser(prog="platolidar simulate", description="Cycles two-bounce lidar simulator "
                                  "(defaults: the paper's 512x512 pixels, 391 bins of 128 ps, 16 spots)")
     ap.add_argument("blend", nargs="?", help="scene .blend (with a Blender binary: the file Blender opened)")
@@ -60,50 +75,19 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--example", help="build an example scene instead of a .blend: "
                     "cave-chair, monkey, occluders, curved-wall, low-albedo, ambient, organic-occluded, "
                     "thin-structures, dark-room, outside-fov")
-    ap.add_argument("--config", help="SimulationConfig JSON file (e.g. exported by the add-on)")
-    ap.add_argument("--camera", help="camera object (default: the scene camera)")
-    ap.add_argument("--resolution", type=int, help="N: an N x N sensor")
-    ap.add_argument("--width", type=int)
-    ap.add_argument("--height", type=int)
-    ap.add_argument("--bins", type=int, help="time bins per pixel")
-    bin_width = ap.add_mutually_exclusive_group()
-    bin_width.add_argument("--bin-ps", type=float, help="bin width in picoseconds")
-    bin_width.add_argument("--bin-m", type=float, help="bin width in metres of optical path (e.g. the paper's "
-                           "0.0384); give this or --bin-ps")
-    ap.add_argument("--start-m", type=float, help="optical path (m) of the first bin's start")
-    ap.add_argument("--pulse-fwhm-ps", type=float, help="laser pulse width (FWHM, ps)")
-    ap.add_argument("--pulse-shape", choices=("gaussian", "box"))
-    ap.add_argument("--footprint-m", type=float, help="laser footprint radius (m)")
-    ap.add_argument("--subpixel", type=int, help="base sub-pixel samples per pixel (a square number: 1, 4, 9, ...)")
-    ap.add_argument("--adaptive", type=int, metavar="N", help="samples of a pixel at a depth, shadow or path-spread "
-                    "edge (a square number; 0: every pixel gets --subpixel samples)")
-    ap.add_argument("--adaptive-spread-bins", type=float, help="refine pixels whose optical path spreads over more "
-                    "bins than this (default 1)")
-    ap.add_argument("--shading", choices=("lambertian", "cycles"), help="per-spot light: deferred Lambertian "
-                    "shading with shadow rays (default), or a Cycles render per spot (glossy materials; slower)")
-    spots = ap.add_mutually_exclusive_group()
-    spots.add_argument("--spots", type=int, help="K spots: K of the scene's spots (diversity heuristic), or K "
-                       "of --candidates random ones when the scene has none")
-    spots.add_argument("--spot-list", help="explicit laser targets 'x,y,z;x,y,z;...' (world, m); write "
-                       "--spot-list=-2,3,0 when the first number is negative")
-    ap.add_argument("--candidates", type=int, help="random candidate spots to choose from (default 24)")
-    ap.add_argument("--photons", type=float, help="photons of the brightest two-bounce pixel (0: keep radiance units)")
-    ap.add_argument("--poisson", action=argparse.BooleanOptionalAction, default=None, help="Poisson photon counts")
-    ap.add_argument("--ambient", type=float, help="ambient photons per pixel per bin, before the filter")
-    ap.add_argument("--wavelength-filter", type=float, help="fraction of ambient light the band-pass filter passes")
-    ap.add_argument("--dark-counts", type=float, help="dark counts per pixel per bin")
-    ap.add_argument("--time-gate", type=int, metavar="W", help="keep a window of W bins around the expected return")
-    ap.add_argument("--bounces", type=int, choices=(2, 3), help="3 adds third-order light (slower)")
-    ap.add_argument("--vpls", type=int, help="with --bounces 3: virtual point lights per spot (default 16)")
-    ap.add_argument("--rgb", action="store_true", default=None, help="also RGB images (RGB-shadow baseline)")
-    ap.add_argument("--test-views", help="ground-truth test views: N (split like the paper's 39 dolly : 100 "
-                    "orbit) or 'D,O'; 0 for none")
-    ap.add_argument("--test-view-resolution", type=int)
-    ap.add_argument("--no-gt", action="store_true", help="no ground truth (depths, mesh)")
-    ap.add_argument("--seed", type=int)
-    ap.add_argument("--set", dest="set_values", action="append", default=[], metavar="KEY=VALUE",
-                    help="any SimulationConfig setting by name, e.g. --set photons_per_pixel=500 (repeatable; "
-                         "wins over the options above)")
+    ap.add_argument("--resolution", type=int, metavar="N", help=f"an N x N sensor (sets width and height) "
+                    f"[default {d.width} x {d.height} px]")
+    ap.add_argument("--time-gate", type=int, metavar="W", help="keep a window of W bins around the expected "
+                    f"return; 0: off (sets time_gate and gate_window_bins) [default off]")
+    ap.add_argument("--spot-list", help="explicit laser targets 'x,y,z;x,y,z;...' (world, m); write "
+                    "--spot-list=-2,3,0 when the first number is negative (sets spots) [default: the scene's "
+                    "spots, else random ones]")
+    ap.add_argument("--test-views", metavar="N|D,O", help="ground-truth test views: N (split like the paper's "
+                    "39 dolly : 100 orbit) or 'D,O'; 0 for none (sets test_views_dolly and test_views_orbit) "
+                    f"[default {d.test_views_dolly},{d.test_views_orbit}]")
+    ap.add_argument("--no-gt", action="store_true", help="no ground truth: no depths, mesh or test views")
+    names = [f.name for f in fields(SimulationConfig) if f.name not in SPECIAL_FIELDS]
+    add_arguments(ap, SimulationConfig, names)
     return ap
 
 
@@ -124,7 +108,7 @@ def _parse_test_views(text: str):
 
 
 def _parse_spot_list(text: str):
-    from torch_recon.contract.simulation import ConfigError, SpotConfig
+    from torch_recon.contract.simulation import ConfigError
 
     spots = []
     for i, item in enumerate(t for t in text.split(";") if t.strip()):
@@ -134,81 +118,74 @@ def _parse_spot_list(text: str):
             xyz = []
         if len(xyz) != 3:
             raise ConfigError("--spot-list", f"spots[{i}]", f"expected 'x,y,z', got {item!r}")
-        spots.append(SpotConfig(target=xyz, name=f"target_{i}"))
+        spots.append({"target": xyz, "name": f"target_{i}"})
     if not spots:
         raise ConfigError("--spot-list", "spots", "expected at least one 'x,y,z'")
     return spots
 
 
-def apply_options(cfg, args):
-    """Command-line options over a SimulationConfig (validated afterwards by the caller)."""
-    direct = {"camera": "camera", "width": "width", "height": "height", "bins": "bins", "bin_ps": "bin_ps",
-              "start_m": "start_m", "pulse_fwhm_ps": "pulse_fwhm_ps", "pulse_shape": "pulse_shape",
-              "footprint_m": "footprint_radius_m", "subpixel": "subpixel_samples", "candidates": "random_candidates",
-              "adaptive": "adaptive_subpixel_samples", "adaptive_spread_bins": "adaptive_spread_bins",
-              "shading": "shading", "bin_m": "bin_m",
-              "photons": "photons_per_pixel", "poisson": "photon_counts", "ambient": "ambient_per_bin",
-              "wavelength_filter": "wavelength_filter_factor", "dark_counts": "dark_counts_per_bin",
-              "bounces": "bounces", "vpls": "third_bounce_vpls", "rgb": "rgb",
-              "test_view_resolution": "test_view_resolution", "seed": "seed"}
+def flag_values(args, cfg) -> dict:
+    """The settings the command-line flags give (setting -> value or text), over `cfg` (the layers below)."""
+    given = {key: getattr(args, dest) for dest, key in args._settings_flags.items()
+             if getattr(args, dest, None) is not None}
+    values = {}
     if args.resolution is not None:
-        cfg.width = cfg.height = args.resolution
-    for opt, name in direct.items():
-        v = getattr(args, opt)
-        if v is not None:
-            setattr(cfg, name, v)
-    if args.bin_ps is not None:       # the command line's unit wins over a stored bin_m
-        cfg.bin_m = None
-    if args.bin_m is not None:
-        from torch_recon.contract.units import m_to_ps
+        values["width"] = values["height"] = args.resolution
+    values.update(given)                # --width/--height win over --resolution
+    if "random_keep" in given and "random_candidates" not in given:
+        from torch_recon.contract.settings import check_value, find_spec
 
-        if args.bin_m > 0:            # else validate() names bin_m
-            cfg.bin_ps = m_to_ps(args.bin_m)
-    if args.spots is not None:
-        cfg.random_keep = args.spots
-        if args.spots > cfg.random_candidates and args.candidates is None:
-            cfg.random_candidates = args.spots
+        keep = check_value(find_spec(type(cfg), "random_keep"), given["random_keep"])
+        if keep > cfg.random_candidates:    # --spots K with fewer candidates: draw K
+            values["random_candidates"] = keep
     if args.spot_list is not None:
-        cfg.spots = _parse_spot_list(args.spot_list)
+        values["spots"] = _parse_spot_list(args.spot_list)
     if args.time_gate is not None:
-        cfg.time_gate = args.time_gate > 0
+        values["time_gate"] = args.time_gate > 0
         if args.time_gate > 0:
-            cfg.gate_window_bins = args.time_gate
+            values["gate_window_bins"] = args.time_gate
     if args.test_views is not None:
-        cfg.test_views_dolly, cfg.test_views_orbit = _parse_test_views(args.test_views)
+        values["test_views_dolly"], values["test_views_orbit"] = _parse_test_views(args.test_views)
     if args.no_gt:
-        cfg.train_depth, cfg.gt_mesh = False, False
-        cfg.test_views_dolly = cfg.test_views_orbit = 0
-    return cfg
+        values.update(train_depth=False, gt_mesh=False, test_views_dolly=0, test_views_orbit=0)
+    return values
 
 
-def load_config(args, bs):
+def check_options(args) -> None:
+    """Each flag's and --set value's type and range, before a scene is built (relations: load_config)."""
+    from torch_recon.contract.settings import check_value, find_spec, parse_assignments
     from torch_recon.contract.simulation import SimulationConfig
 
-    cfg = bs.stored_config() or SimulationConfig()
-    if args.config:
-        from torch_recon.contract.settings import load_file
-
-        file_cfg = SimulationConfig.load(args.config)          # validates, rejects unknown settings
-        raw = load_file(args.config)
-        merged = {**cfg.to_dict(), **{k: v for k, v in raw.items() if k != "schema_version"}}
-        merged["spots"] = [vars(s) for s in file_cfg.spots] if "spots" in raw else [vars(s) for s in cfg.spots]
-        cfg = SimulationConfig.from_dict(merged, args.config)
-    cfg = apply_options(cfg, args)
-    cfg = apply_sets(cfg, args.set_values)
-    return cfg.validate("command line" if not args.config else f"command line + {args.config}")
+    for key, raw in {**flag_values(args, SimulationConfig()), **parse_assignments(args.set_values)}.items():
+        if key != "spots":
+            check_value(find_spec(SimulationConfig, key), raw)
 
 
-def apply_sets(cfg, assignments):
-    """--set KEY=VALUE over a SimulationConfig, each value type-checked by the shared settings mechanism."""
-    from torch_recon.contract.settings import check_value, find_spec, parse_assignments
+def spots_requested(args) -> bool:
+    """--spots K given: keep K of the scene's own spots too (not only of random ones)."""
+    return any(key == "random_keep" and getattr(args, d) is not None for d, key in args._settings_flags.items())
+
+
+def load_config(args, base=None):
+    """Settings, later ones winning: SimulationConfig defaults < `base` (the settings stored in the .blend)
+    < --config FILE < flags < --set KEY=VALUE. Each layer is type- and range-checked naming the setting."""
     from torch_recon.contract.errors import SettingsError
+    from torch_recon.contract.settings import load_file, parse_assignments
+    from torch_recon.contract.simulation import ConfigError, SimulationConfig
 
-    for key, raw in parse_assignments(assignments).items():
-        if key == "spots":
-            raise SettingsError("spots", "set spots with --spot-list or a --config file")
-        setattr(cfg, key, check_value(find_spec(type(cfg), key), raw))
-    return cfg
+    cfg = base if base is not None else SimulationConfig()
+    if args.config:
+        try:
+            raw = load_file(args.config)
+        except OSError as exc:
+            raise ConfigError(str(args.config), "", f"cannot read ({exc.strerror})") from None
+        cfg = cfg.updated(raw, str(args.config))
+    values = flag_values(args, cfg)
+    sets = parse_assignments(args.set_values)
+    if "spots" in sets:
+        raise SettingsError("spots", "set spots with --spot-list or a --config file")
+    values.update(sets)                 # --set last: it wins over the flags
+    return cfg.updated(values, "command line" if not args.config else f"command line + {args.config}")
 
 
 def simulate(args) -> int:
@@ -218,6 +195,7 @@ def simulate(args) -> int:
     from pipeline import simulator
     from torch_recon.contract import scenes
 
+    check_options(args)
     if args.example and args.blend:
         raise simulator.SimulationError("give either a .blend or --example, not both")
     if args.example:
@@ -241,16 +219,28 @@ def simulate(args) -> int:
         label = os.path.basename(bpy.data.filepath)   # Blender binary: the file it opened
     else:
         raise simulator.SimulationError("no scene: give a .blend file or --example NAME")
-    cfg = load_config(args, bs)
-    result = simulator.run(cfg, args.out, label, keep_requested=args.spots is not None)
+    cfg = load_config(args, bs.stored_config())
+    result = simulator.run(cfg, args.out, label, keep_requested=spots_requested(args))
     t = result["timings"]
     print(f"simulate: wrote {args.out}: {result['spots']} spots, {cfg.width}x{cfg.height}x{cfg.bins} bins, "
           f"{t['total_s']:.1f} s", file=sys.stderr)
     return 0
 
 
+def parse_args(argv) -> argparse.Namespace:
+    """The options (exit 2 with a usage line on a bad one, as argparse does)."""
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    dest = {key: d for d, key in args._settings_flags.items()}
+    if getattr(args, dest["bin_ps"]) is not None and getattr(args, dest["bin_m"]) is not None:
+        ap.error("argument --bin-m: not allowed with argument --bin-ps")     # one unit for the bin width
+    if getattr(args, dest["random_keep"]) is not None and args.spot_list is not None:
+        ap.error("argument --spot-list: not allowed with argument --spots")
+    return args
+
+
 def main(argv=None) -> int:
-    args = build_parser().parse_args(_argv() if argv is None else argv)  # exits 2 with a usage line on bad options
+    args = parse_args(_argv() if argv is None else argv)
     _add_venv_site_packages()
     from torch_recon.contract.dataset.staging import InterruptGuard
     from torch_recon.contract.errors import run_command

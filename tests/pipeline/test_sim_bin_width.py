@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from torch_recon.contract.simulation import ConfigError, SimulationConfig
-from pipeline.simulate import apply_options, build_parser
+from pipeline.simulate import load_config, parse_args
 from torch_recon.contract.units import m_to_ps, ps_to_m
 
 PAPER_BIN_M = 0.0384
@@ -13,8 +13,7 @@ PAPER_BIN_PS = 128.08861255609037      # what --bin-ps needed before --bin-m exi
 
 
 def _cfg(*argv):
-    args = build_parser().parse_args(["--out", "x", *argv])
-    return apply_options(SimulationConfig(), args).validate()
+    return load_config(parse_args(["--out", "x", *argv]))
 
 
 def test_bin_m_round_trips_with_bin_ps():
@@ -31,7 +30,7 @@ def test_bin_m_round_trips_with_bin_ps():
 
 def test_bin_m_and_bin_ps_are_exclusive(capsys):
     with pytest.raises(SystemExit) as exc:
-        build_parser().parse_args(["--out", "x", "--bin-m", "0.0384", "--bin-ps", "128"])
+        parse_args(["--out", "x", "--bin-m", "0.0384", "--bin-ps", "128"])
     assert exc.value.code == 2
     assert "--bin-ps" in capsys.readouterr().err
     with pytest.raises(ConfigError, match="bin_m"):
