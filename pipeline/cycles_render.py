@@ -6,7 +6,7 @@ point sample at a sub-pixel centre; each s x s block is one sensor pixel's
 S = s^2 samples (sample k = a * s + b: row offset a, column offset b, the order
 of torch_recon.contract.analytic's stratified offsets).
 
-Light units (checked numerically, tests/test_sim_physics.py): a Cycles disk area
+Light units (checked numerically, tests/pipeline/test_sim_physics.py): a Cycles disk area
 light of power P_e watts is a Lambertian emitter of exitance P_e / A, so a
 Lambertian surface of albedo rho_x at distance r returns radiance
 (rho_x / pi) (P_e / pi) cos_l cos_x / r^2. The lit laser spot reflects

@@ -10,7 +10,7 @@ torch_recon.contract.analytic rendered at `reference_subpixel`^2 stratified samp
   count as lit, rounding noise ~1e-16 on surfaces coplanar with the spot does not);
 - energy ratio simulated / reference per lit pixel: 1st, 50th and 99th percentile.
 Goals (issue 14): within_1_bin >= 0.99 and shadow_iou >= 0.98. mitransient (an independent path
-tracer, ../shared/REFERENCE_RENDERER.md) is not run here; tests/test_sim_mitransient.py has it.
+tracer, ../shared/REFERENCE_RENDERER.md) is not run here; tests/pipeline/test_sim_mitransient.py has it.
 """
 
 from __future__ import annotations
