@@ -77,6 +77,8 @@ class FastConfig:
     rays_per_batch: int = 4096
     steps: int = 100                  # cave-chair 128 (session 5): 100 steps F@2cm 0.834, hidden R 0.764, fewer holes;
                                       # 200: 0.845 / 0.721 and more holes in walls and floor; half the time
+    # --- training of the start field (helper quality, session 6) ---
+    adam_eps: float = 1e-8            # Adam's epsilon: raw-density gradients far below it barely move a voxel
     # --- start field outside the sensor's view and mesh (recon/init.py, recon/unobserved.py) ---
     complete_unobserved: bool = True  # outside the view the planes bounding the observation continue (walls,
                                       # floor, ceiling next to the sensor); False: nothing is put there

@@ -1,7 +1,7 @@
-"""The two reconstructors behind one interface; both use `pair_loss` (the paper's losses).
+"""The two reconstructors behind one interface (`ReconstructionModel`); both use the paper's losses.
 
 A model owns its field(s) and optimiser and exposes: `loss(idx, step, total, gen)`, `before_step`,
-`render_depth(origins, dirs)` (evaluation, no grad), `density_volume()` (for the mesh) and
+`after_step`, `render_depth(origins, dirs)` (evaluation, no grad), `density_volume()` (for the mesh) and
 `state_dict` / `load_state_dict` (checkpoints).
 """
 
@@ -20,13 +20,24 @@ from .renderer import render_field, render_pruned, secondary_rays
 from .sampler import importance_positions, merged_intervals, ray_box, uniform_intervals
 
 
-def pair_loss(model, data: RayData, idx, step: int, total: int, cfg: FitConfig, offset: float):
+class ReconstructionModel:
+    """What the trainer asks of every model beyond its methods; the defaults of the interface."""
+
+    skip_warmup = False     # True: the distance-only warm-up would move nothing (start with both losses)
+    plateau_stop = True     # False: run every step of the schedule (no early stop on a loss plateau)
+
+    def after_step(self, step: int) -> bool:
+        """Called after each optimiser step (`step` steps done); True when the model replaced its parameters."""
+        return False
+
+
+def pair_loss(model: ReconstructionModel, data: RayData, idx, step: int, total: int, cfg: FitConfig, offset: float):
     """Distance (+ shadow after the warm-up) loss of the (spot, pixel) pairs `idx`."""
     px, sp = data.pair_pixel[idx], data.pair_spot[idx]
     dirs = data.pixel_dirs[px]
     c = data.sensor_origin.expand_as(dirs)
     l = data.spot_points[sp]
-    warm = in_warmup(step, total, cfg.loss) and not getattr(model, "skip_warmup", False)
+    warm = in_warmup(step, total, cfg.loss) and not model.skip_warmup
     loss = dirs.new_zeros(())
     stats = {"dist": 0.0, "shadow": 0.0}
     for depth in model.camera_depths(c, dirs, px):
@@ -44,7 +55,7 @@ def pair_loss(model, data: RayData, idx, step: int, total: int, cfg: FitConfig, 
     return loss, stats
 
 
-class FastModel:
+class FastModel(ReconstructionModel):
     """Explicit density grid, initialised from the measurements, occupancy-pruned marching."""
 
     def __init__(self, data: RayData, cfg: FitConfig, meas_meta: dict):
@@ -57,13 +68,15 @@ class FastModel:
         self.bbox = (lo, hi)
         self.level = 0 if self.fc.coarse_fraction > 0 and self.fc.coarse_resolution < self.fc.resolution else 1
         self.grid, self.free = self._initial(self.fc.coarse_resolution if self.level == 0 else self.fc.resolution)
-        self.trainable = self._trainable(self.grid.raw)
+        self._hook = None
+        self._set_measured_mask(self.grid.raw)
         self.occupancy = None
         self.refresh_occupancy()
         self.make_optimizer()
 
-    def _initial(self, res):
-        box = GridBox(self.bbox[0], self.bbox[1], res).to(self.device)
+    def _initial(self, res=None, box=None):
+        """The start field and its free space on `box`, or on a new box of `res` voxels along the longest side."""
+        box = GridBox(self.bbox[0], self.bbox[1], res).to(self.device) if box is None else box
         return initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box))
 
     @property
@@ -71,6 +84,12 @@ class FastModel:
         """With the sensor-measured voxels frozen the distance loss has nothing left to move (camera rays
         stop in the frozen surface band), so its warm-up would be idle steps."""
         return self.fc.freeze_measured
+
+    def _set_measured_mask(self, raw):
+        """`trainable` (the mask below) and `raw_start` (the start values the anchor prior pulls to) of the
+        start field `raw`; both None when neither freezing nor the anchor asks for them."""
+        self.trainable = self._trainable(raw)
+        self.raw_start = None if self.trainable is None else raw.detach().clone()
 
     def _trainable(self, raw):
         """Voxels (raw layout (1, 1, nz, ny, nx), bool) the optimiser may change, or None (all).
@@ -82,7 +101,6 @@ class FastModel:
         blockers and the unmeasured space outside the view."""
         if not (self.fc.freeze_measured or self.fc.anchor_weight > 0):
             return None
-        self.raw_start = raw.detach().clone()
         with torch.no_grad():
             ramp = (raw > self.fc.raw_free + 1e-3) & (raw < self.fc.raw_occupied - 1e-3)
             k = 2 * int(self.fc.freeze_dilate_voxels) + 1
@@ -116,10 +134,13 @@ class FastModel:
         return self.fc.step_voxels * self.grid.box.voxel
 
     def make_optimizer(self):
-        self.optimizer = torch.optim.Adam(self.grid.parameters(), lr=self.fc.lr)
+        self.optimizer = torch.optim.Adam(self.grid.parameters(), lr=self.fc.lr, eps=self.fc.adam_eps)
+        if self._hook is not None:      # one gradient mask at a time, also when called again on the same grid
+            self._hook.remove()
+            self._hook = None
         if self.trainable is not None and self.fc.freeze_measured:  # zero gradient: Adam never moves it
             mask = self.trainable.to(self.grid.raw.dtype)
-            self.grid.raw.register_hook(lambda g: g * mask)
+            self._hook = self.grid.raw.register_hook(lambda g: g * mask)
 
     def refresh_occupancy(self):
         with torch.no_grad():
@@ -137,9 +158,9 @@ class FastModel:
         if self.level == 0 and step >= int(self.fc.coarse_fraction * total):
             self.grid = self.grid.upsampled(self.fc.resolution)
             self.level = 1
-            if self.fc.freeze_measured:     # the mask of the fine level: from its own start field
-                start, self.free = self._initial(self.fc.resolution)
-                self.trainable = self._trainable(start.raw)
+            if self.trainable is not None:  # the mask of the fine level: from its own start field (built
+                start, self.free = self._initial(box=self.grid.box)     # once: free_evidence reuses `free`)
+                self._set_measured_mask(start.raw)
             self.refresh_occupancy()
             self.make_optimizer()
             return True
@@ -214,7 +235,7 @@ class FastModel:
         return {"level": self.level, "raw": self.grid.raw.detach().clone(),
                 "bbox_min": self.grid.box.bbox_min.cpu(), "voxel": self.grid.box.voxel,
                 "shape": list(self.grid.box.shape), "free": self.free.clone(),
-                "trainable": self.trainable, "occupancy": self.occupancy.clone(), "tau_step": self.tau_step.clone(), "optimizer": self.optimizer.state_dict()}
+                "trainable": self.trainable, "raw_start": self.raw_start, "occupancy": self.occupancy.clone(), "tau_step": self.tau_step.clone(), "optimizer": self.optimizer.state_dict()}
 
     def load_state_dict(self, st):
         self.level = int(st["level"])
@@ -224,6 +245,8 @@ class FastModel:
             self.free = st["free"].to(self.device)
         t = st.get("trainable")
         self.trainable = None if t is None else t.to(self.device)
+        r0 = st.get("raw_start")
+        self.raw_start = None if r0 is None else r0.to(self.device)
         self.occupancy = st["occupancy"].to(self.device)
         self.tau_step = st["tau_step"].to(self.device)
         self.make_optimizer()

@@ -24,11 +24,11 @@ from .data import RayData
 from .fields import GridBox, NeRFField
 from .init import scene_bbox
 from .losses import distance_loss, in_warmup, shadow_loss
-from .models import _depth
+from .models import ReconstructionModel, _depth
 from .platonerf_render import render_hierarchical
 
 
-class PlatoNeRFModel:
+class PlatoNeRFModel(ReconstructionModel):
     """Coarse + fine NeRF density MLPs, hierarchical sampling and the authors' loss and schedule."""
 
     plateau_stop = False    # the authors' schedule runs all its steps (no early stop)

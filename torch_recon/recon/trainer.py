@@ -149,7 +149,7 @@ def train(model, data, cfg: FitConfig, gen: torch.Generator, out_dir=None, on_ev
                     model.optimizer.step()
                     ok = model.params_finite()
                     # a model may replace its networks after a step (PlatoNeRF's re-initialisation)
-                    if ok and hasattr(model, "after_step") and model.after_step(step + 1):
+                    if ok and model.after_step(step + 1):
                         best, since, ema = float("inf"), 0, None
             if not ok:
                 res.nan_restores += 1
@@ -181,7 +181,7 @@ def train(model, data, cfg: FitConfig, gen: torch.Generator, out_dir=None, on_ev
             else:
                 since += 1
             if (not warm and cfg.plateau_patience > 0 and since >= cfg.plateau_patience
-                    and getattr(model, "plateau_stop", True)):
+                    and model.plateau_stop):
                 res.stopped = "plateau"
                 break
             if ck_path is not None and res.train_seconds - last_ck >= cfg.checkpoint_every_s:

@@ -89,3 +89,47 @@ def test_trained_floor_stays_flat_when_frozen(meas, tmp_path):
     assert floor.sum() > 20
     z = np.abs(v[floor, 2])
     assert np.quantile(z, 0.95) < 0.2 * voxel and z.max() < 0.75 * voxel, (np.quantile(z, 0.95), z.max(), voxel)
+
+
+def test_mask_helpers_have_no_side_effects_and_one_gradient_hook(meas):
+    """`_trainable` only computes the mask (raw_start is set by `_set_measured_mask`); rebuilding the optimiser
+    on the same grid keeps a single gradient mask."""
+    cfg = frozen_config()
+    data = build_ray_data(meas)
+    model = FastModel(data, cfg, _meta(meas))
+    assert model.raw_start is not None and torch.equal(model.raw_start, model.grid.raw.detach())
+    before = model.raw_start
+    other = torch.full_like(model.grid.raw, cfg.fast.raw_occupied)
+    assert model._trainable(other) is not None and model.raw_start is before
+    model.make_optimizer()
+    model.make_optimizer()
+    assert len(model.grid.raw._backward_hooks) == 1
+    model.grid.raw.sum().backward()
+    assert torch.equal(model.grid.raw.grad, model.trainable.to(model.grid.raw.dtype))
+
+
+def test_coarse_to_fine_with_the_anchor_builds_the_fine_start_once(meas, monkeypatch):
+    """With a coarse level and the anchor prior the level switch builds the fine start field once (mask, anchor
+    values and the mesh's free space all come from it) and the anchor has the fine grid's shape."""
+    import torch_recon.recon.models as models
+
+    calls = []
+    real = models.initial_grid
+    monkeypatch.setattr(models, "initial_grid", lambda data, box, *a, **k: calls.append(box.shape) or real(data, box, *a, **k))
+    cfg = small_config(steps=6)
+    cfg.fast.coarse_fraction = 0.5
+    cfg.fast.anchor_weight = 0.01
+    r = fit(meas, config=cfg)
+    fine = tuple(r.model.grid.box.shape)
+    assert r.model.raw_start.shape == r.model.grid.raw.shape
+    assert r.model.free_evidence().shape == fine
+    assert len(calls) == 2 and tuple(calls[0]) != fine and tuple(calls[1]) == fine, calls
+
+
+def test_every_model_has_the_trainer_interface():
+    from torch_recon.recon.models import ReconstructionModel
+    from torch_recon.recon.platonerf_model import PlatoNeRFModel
+
+    assert issubclass(FastModel, ReconstructionModel) and issubclass(PlatoNeRFModel, ReconstructionModel)
+    assert PlatoNeRFModel.skip_warmup is False and PlatoNeRFModel.plateau_stop is False
+    assert FastModel.plateau_stop is True
