@@ -133,3 +133,22 @@ def test_every_model_has_the_trainer_interface():
     assert issubclass(FastModel, ReconstructionModel) and issubclass(PlatoNeRFModel, ReconstructionModel)
     assert PlatoNeRFModel.skip_warmup is False and PlatoNeRFModel.plateau_stop is False
     assert FastModel.plateau_stop is True
+
+
+def test_adam_epsilon_keeps_weakly_constrained_voxels_in_place(meas):
+    """Adam moves a voxel by about lr per step whatever the size of a consistently signed gradient; with
+    `fast.adam_eps` far above a voxel's gradient the step shrinks to lr |g| / eps. The visible floor's ramp
+    (small gradients) then moves much less, while the fit still changes the field."""
+    moved, changed = [], []
+    for eps in (1e-8, 1e-3):
+        cfg = small_config(steps=10)
+        cfg.fast.adam_eps = eps
+        data = build_ray_data(meas)
+        raw0 = FastModel(data, cfg, _meta(meas)).grid.raw.detach().clone()
+        r = fit(meas, config=cfg)
+        delta = (r.model.grid.raw.detach() - raw0).abs()
+        ramp = (raw0 > cfg.fast.raw_free + 1e-3) & (raw0 < cfg.fast.raw_occupied - 1e-3)
+        moved.append(float(delta[ramp].mean()))
+        changed.append(int((delta > 1e-3).sum()))
+    assert moved[1] < 0.5 * moved[0], moved
+    assert changed[1] > 0, changed
