@@ -155,7 +155,7 @@ class FitConfig:
             raise SettingsError("platonerf.reinit_dead",
                                 f"expected 'both', 'coarse' or 'off', got {self.platonerf.reinit_dead!r}")
         check_device_name(self.device)
-        for key in ("fast.lr", "fast.step_voxels", "fast.rays_per_batch", "platonerf.lr", "platonerf.rays_per_batch",
+        for key in ("fast.lr", "fast.adam_eps", "fast.step_voxels", "fast.rays_per_batch", "platonerf.lr", "platonerf.rays_per_batch",
                     "loss.path_scale_m"):
             section, name = key.split(".")
             v = getattr(getattr(self, section), name)

@@ -152,3 +152,11 @@ def test_adam_epsilon_keeps_weakly_constrained_voxels_in_place(meas):
         changed.append(int((delta > 1e-3).sum()))
     assert moved[1] < 0.5 * moved[0], moved
     assert changed[1] > 0, changed
+
+
+def test_adam_epsilon_must_be_positive():
+    from torch_recon.contract.errors import SettingsError
+    from torch_recon.recon.config import FitConfig, override
+
+    with pytest.raises(SettingsError, match="fast.adam_eps"):
+        override(FitConfig(), ["fast.adam_eps=0"])
