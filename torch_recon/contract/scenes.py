@@ -292,9 +292,11 @@ def dark_room() -> ExampleScene:
 
 
 #: out-of-view laser targets of `outside_fov` (the laser scans a wider field than the camera sees): the right
-#: wall next to the sensor, the floor and the ceiling near it; light from each passes the column on its way
-#: to visible surfaces, so the column's shadows land in the image (checked in tests/torch_recon/contract)
-OUTSIDE_FOV_TARGETS = ((2.0, 0.45, -0.6), (1.2, 0.15, -2.0), (1.2, 0.15, 2.0))
+#: wall next to the sensor (three heights) and the floor near it; light from each passes the column on its way
+#: to visible surfaces, so the column's shadows land in the image (tests/torch_recon/contract/test_scene_objects).
+#: Five, from different sides: recon.init.in_view counts space beside the sensor as measured where at least
+#: two spots' secondary rays cross it
+OUTSIDE_FOV_TARGETS = ((2.0, 0.45, -0.6), (1.2, 0.15, -2.0), (1.9, 0.3, -2.0), (2.0, 0.5, -1.7), (2.0, 0.2, 1.2))
 
 
 def outside_fov() -> ExampleScene:

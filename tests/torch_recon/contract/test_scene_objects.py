@@ -61,7 +61,7 @@ def test_outside_fov_column_is_out_of_view_and_shadows_visible_pixels():
     from torch_recon.contract.synthetic import concat, default_sensor
 
     sc = outside_fov()
-    assert sum(sc.spot_enabled) == 16 and sc.spot_enabled[-len(OUTSIDE_FOV_TARGETS):] == [True] * 3
+    assert sum(sc.spot_enabled) == 16 and all(sc.spot_enabled[-len(OUTSIDE_FOV_TARGETS):])
     column = next(p for p in sc.parts if p.name == "column")
     sensor = default_sensor(24, 24, bins=391)
     col, row, depth = project_points(sensor.camera_to_world, 24, 24, sensor.fov_rad, column.vertices)
@@ -70,4 +70,4 @@ def test_outside_fov_column_is_out_of_view_and_shadows_visible_pixels():
     with_column = render_two_bounce(sc.trimesh()[0], sensor, lds).sum(-1) > 0
     without = render_two_bounce(concat(room_walls() + chair()), sensor, lds).sum(-1) > 0
     shadowed_by_column = (without & ~with_column).sum(axis=(1, 2))
-    assert np.all(shadowed_by_column[:2] > 0.1 * 24 * 24) and shadowed_by_column[2] > 0, shadowed_by_column
+    assert np.all(shadowed_by_column > 0.05 * 24 * 24), shadowed_by_column
