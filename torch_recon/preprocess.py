@@ -283,10 +283,12 @@ def preprocess(sensor, spot_transients, settings: PreprocessSettings | None = No
     for i, (s, tr) in enumerate(it):   # out-of-view spots wait for the depth the in-view ones measure
         if laser_ray_seen(sensor, s.laser_direction):
             spots.append((i, process_spot(tr, sensor, s, settings, device, dirs)))
-        else:
-            out_of_view.append((i, s, tr))
+        else:       # a lazily read dataset reads it again later: a 512^2 cube per spot is 400 MB
+            out_of_view.append((i, s, None if isinstance(items, _LazySpots) else tr))
+        del tr
     if out_of_view:
-        spots += _out_of_view_spots(sensor, [m for _, m in spots], out_of_view, settings, device, dirs)
+        read = items.dataset.read_transient if isinstance(items, _LazySpots) else None
+        spots += _out_of_view_spots(sensor, [m for _, m in spots], out_of_view, settings, device, dirs, read)
     spots = [m for _, m in sorted(spots, key=lambda im: im[0])]
     if not spots:
         raise PreprocessError("no enabled spots to preprocess")
@@ -302,7 +304,7 @@ def preprocess(sensor, spot_transients, settings: PreprocessSettings | None = No
     return m
 
 
-def _out_of_view_spots(sensor, spots, out_of_view, settings, device, dirs) -> list:
+def _out_of_view_spots(sensor, spots, out_of_view, settings, device, dirs, read_transient=None) -> list:
     """[(index, SpotMeasurement)] of the out-of-view (index, spot, transient) triples, each located by its
     two-bounce arrival times at pixels whose depth the in-view `spots` measured
     (first_bounce.fit_out_of_view_spot; the laser's pulse is an in-view spot's)."""
@@ -328,6 +330,7 @@ def _out_of_view_spots(sensor, spots, out_of_view, settings, device, dirs) -> li
                           peak_bin=0)
     out = []
     for i, s, tr in out_of_view:
+        tr = tr if tr is not None else read_transient(s.id)
         check_transient(tr, sensor, s.id)
         mf = matched_filter_spot(tr, sensor, ungated, settings, device)
         path = np.where(mf.confidence >= settings.shadow_threshold, mf.path, np.nan)
