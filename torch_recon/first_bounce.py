@@ -3,7 +3,8 @@
 find_first_bounce locates l_k, the point the laser hits, from the brightest return along the laser
 ray and measures the pulse there. A spot outside the sensor's view (a laser scanning a wider field than
 the camera sees) has no first-bounce return: fit_out_of_view_spot fits its range along the known laser
-direction to its two-bounce arrival times at pixels whose depth the in-view spots measured. The sub-bin peak model (a bin-integrated Gaussian whose width is
+direction to its two-bounce arrival times at pixels whose depth the in-view spots measured.
+The sub-bin peak model (a bin-integrated Gaussian whose width is
 fitted to that pulse) refines both the first-bounce path and every two-bounce peak.
 """
 

@@ -27,15 +27,16 @@ def column_ds(tmp_path_factory):
     sensor (right wall, floor) whose light passes the column."""
     mesh, _ = outside_fov().trimesh()
     lds = np.concatenate([paper_laser_directions()[[0, 5, 9]], _unit(OUTSIDE_FOV_TARGETS)])
-    path, parts = write_analytic_dataset(tmp_path_factory.mktemp("oov") / "ds", mesh, default_sensor(RES, RES, bins=391),
-                                         lds)
+    path, parts = write_analytic_dataset(tmp_path_factory.mktemp("oov") / "ds", mesh,
+                                         default_sensor(RES, RES, bins=391), lds)
     return load_dataset(path), parts
 
 
 def test_out_of_view_spot_is_located_from_two_bounce_times(column_ds):
     ds, parts = column_ds
     sensor = ds.sensor
-    assert [laser_ray_seen(sensor, s.laser_direction) for s in ds.manifest.enabled_spots] == [True] * 3 + [False] * len(OUTSIDE_FOV_TARGETS)
+    seen = [laser_ray_seen(sensor, s.laser_direction) for s in ds.manifest.enabled_spots]
+    assert seen == [True] * 3 + [False] * len(OUTSIDE_FOV_TARGETS)
     m = preprocess_dataset(ds)
     assert [s.spot_id for s in m.spots] == [s.id for s in ds.manifest.enabled_spots]
     for k in range(3, len(m.spots)):
