@@ -44,11 +44,11 @@ def scene_bbox(data: RayData, margin_m: float, quantile: float = 0.001):
     return lo.astype(np.float32), hi.astype(np.float32)
 
 
-def _marching_cells(box: GridBox, origins, dirs, near, far, step, chunk_samples: int = 1 << 22,
+def _marching_cells(box: GridBox, origins, dirs, near, far, step, chunk_samples: int = 1 << 20,
                     core: float = 0.5):
     """The voxels of the fixed-step marching samples (interval midpoints, as `marching_intervals`) of each
     segment, chunk by chunk: yields (rays, flat, keep): the segments' indices (R,), the flat x-major voxel
-    index of every sample (R, n) and whether it counts (inside the box, non-empty interval, within `core`
+    index of every sample (R, n; float, arbitrary where not counted) and whether it counts (inside the box, non-empty interval, within `core`
     voxel of the voxel centre on every axis). Segments are taken longest first so that a chunk pads its
     rays only to its own longest one (every sample of every segment is the same as with one global
     padding: the counts do not change, the work shrinks by half for shadow-carving segments)."""
@@ -69,26 +69,26 @@ def _marching_cells(box: GridBox, origins, dirs, near, far, step, chunk_samples:
         t0 = nr + k_all[:n] * step
         t1 = torch.minimum(t0 + step, fr)
         t0 = torch.minimum(t0, fr)
-        pts = origins[rays, None] + dirs[rays, None] * (0.5 * (t0 + t1))[..., None]
-        q = (pts - box.bbox_min) / box.voxel
+        q = dirs[rays, None] * (0.5 * (t0 + t1))[..., None]
+        q = q.add_(origins[rays, None]).sub_(box.bbox_min).div_(box.voxel)     # the sample in voxel units
         f = torch.floor(q)
         keep = ((f >= 0) & (f < size)).all(-1) & (t1 > t0)
         if core < 0.5:
             keep &= ((q - f - 0.5).abs() <= core).all(-1)
         if wide:
             f = f.double()
-        flat = ((f[..., 0] * ny + f[..., 1]) * nz + f[..., 2]).where(keep, torch.zeros((), dtype=f.dtype)).long()
+        flat = f[..., 0].mul_(ny).add_(f[..., 1]).mul_(nz).add_(f[..., 2])   # float, exact below 2^24 (2^53)
         yield rays, flat, keep
 
 
-def _accumulate(box: GridBox, origins, dirs, near, far, step, counts, chunk_samples=1 << 22, core: float = 0.5):
+def _accumulate(box: GridBox, origins, dirs, near, far, step, counts, chunk_samples=1 << 20, core: float = 0.5):
     """Add 1 to `counts` (flat, x-major) for every marching sample of each segment inside the box whose
     position lies within `core` voxel of the voxel centre on every axis (0.5: anywhere in the voxel;
     smaller: a segment that only clips a corner of a partly filled voxel does not count)."""
     if origins.shape[0] == 0:
         return
     for _, flat, keep in _marching_cells(box, origins, dirs, near, far, step, chunk_samples, core):
-        counts += torch.bincount(flat[keep], minlength=counts.numel())
+        counts += torch.bincount(flat[keep].long(), minlength=counts.numel())
 
 
 def _depth_normals(x: np.ndarray, valid: np.ndarray, c: np.ndarray, max_jump: np.ndarray, tol: float,
@@ -219,7 +219,7 @@ RESTORED = 4
 
 
 def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count, origins, dirs, near, far, step,
-                    restorable=(3,), chunk_samples: int = 1 << 22) -> int:
+                    restorable=(3,), chunk_samples: int = 1 << 20) -> int:
     """Make every shadowed segment blocked (in place on the flat `label`): a shadowed segment whose voxels
     were all carved free gets back the carved voxel along it with the most shadowed and fewest free
     crossings (shadow / (lit + 1)). Carving through whole voxels takes thin parts
@@ -232,6 +232,7 @@ def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count,
     can[list(restorable)] = True
     picked = []
     for _, flat, keep in _marching_cells(box, origins, dirs, near, far, step, chunk_samples):
+        flat = flat.where(keep, 0.0).long()
         lab = label[flat]
         blocked = (keep & (lab != 2) & (lab != 3)).any(1)
         cand = keep & can[lab.long()] & ~blocked[:, None]
