@@ -147,6 +147,15 @@ def visible_surface(data: RayData, box: GridBox):
     return x[valid], normals[valid]
 
 
+def _dilate_cube(x: torch.Tensor, r: int) -> torch.Tensor:
+    """Maximum over the (2 r + 1)^3 cube around each voxel of x (nx, ny, nz), one axis at a time (the
+    same as one 3-D max pool, a fifth of the time for r = 3)."""
+    x = x[None, None]
+    for kernel in ((2 * r + 1, 1, 1), (1, 2 * r + 1, 1), (1, 1, 2 * r + 1)):
+        x = torch.nn.functional.max_pool3d(x, kernel, 1, tuple(k // 2 for k in kernel))
+    return x[0, 0]
+
+
 def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: float = 2.0, k: int = 4,
                             surface=None):
     """Point-to-plane signed distance (m, + behind the surface) of voxel centres within `half_width_voxels`
@@ -167,7 +176,7 @@ def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: floa
     occ = torch.zeros(box.shape, dtype=torch.float32)
     occ[tuple(torch.from_numpy(idx[inside]).T)] = 1.0
     r = int(math.ceil(half_width_voxels)) + 1
-    occ = torch.nn.functional.max_pool3d(occ[None, None], 2 * r + 1, 1, r)[0, 0] > 0
+    occ = _dilate_cube(occ, r) > 0
     cand = torch.nonzero(occ, as_tuple=False).numpy()
     centres = lo + (cand + 0.5) * box.voxel
     tree = cKDTree(pts)
