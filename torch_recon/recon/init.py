@@ -48,15 +48,16 @@ def _marching_cells(box: GridBox, origins, dirs, near, far, step, chunk_samples:
                     core: float = 0.5):
     """The voxels of the fixed-step marching samples (interval midpoints, as `marching_intervals`) of each
     segment, chunk by chunk: yields (rays, flat, keep): the segments' indices (R,), the flat x-major voxel
-    index of every sample (R, n; float, arbitrary where not counted) and whether it counts (inside the box, non-empty interval, within `core`
-    voxel of the voxel centre on every axis). Segments are taken longest first so that a chunk pads its
-    rays only to its own longest one (every sample of every segment is the same as with one global
-    padding: the counts do not change, the work shrinks by half for shadow-carving segments)."""
+    index of every sample (R, n; float, arbitrary where not counted) and whether it counts (inside the
+    box, non-empty interval, within `core` voxel of the voxel centre on every axis).
+
+    Segments are taken longest first so that a chunk pads its rays only to its own longest one, and
+    the axes are done one at a time on contiguous arrays: every sample and voxel is the same as with
+    one global padding and (R, n, 3) arrays, at about a third of the time."""
     nx, ny, nz = box.shape
     span = (far - near).clamp(min=0)
     n_all = max(1, int(float(span.max()) / step) + 1)
     order = torch.argsort(span, descending=True, stable=True)
-    size = torch.tensor(box.shape, dtype=torch.float32, device=origins.device)
     wide = nx * ny * nz >= 1 << 24          # flat index exact in float32 below 2^24
     k_all = torch.arange(n_all, device=near.device, dtype=near.dtype)
     i = 0
@@ -69,15 +70,20 @@ def _marching_cells(box: GridBox, origins, dirs, near, far, step, chunk_samples:
         t0 = nr + k_all[:n] * step
         t1 = torch.minimum(t0 + step, fr)
         t0 = torch.minimum(t0, fr)
-        q = dirs[rays, None] * (0.5 * (t0 + t1))[..., None]
-        q = q.add_(origins[rays, None]).sub_(box.bbox_min).div_(box.voxel)     # the sample in voxel units
-        f = torch.floor(q)
-        keep = ((f >= 0) & (f < size)).all(-1) & (t1 > t0)
-        if core < 0.5:
-            keep &= ((q - f - 0.5).abs() <= core).all(-1)
-        if wide:
-            f = f.double()
-        flat = f[..., 0].mul_(ny).add_(f[..., 1]).mul_(nz).add_(f[..., 2])   # float, exact below 2^24 (2^53)
+        keep = t1 > t0
+        mid = 0.5 * (t0 + t1)
+        o, d = origins[rays], dirs[rays]
+        flat = None
+        for axis, (size, stride) in enumerate(((nx, 1), (ny, ny), (nz, nz))):
+            q = d[:, axis, None] * mid           # the sample's coordinate in voxel units
+            q = q.add_(o[:, axis, None]).sub_(box.bbox_min[axis]).div_(box.voxel)
+            f = torch.floor(q)
+            keep &= (f >= 0) & (f < size)
+            if core < 0.5:
+                keep &= (q - f - 0.5).abs() <= core
+            if wide:
+                f = f.double()
+            flat = f if flat is None else flat.mul_(stride).add_(f)
         yield rays, flat, keep
 
 
@@ -87,8 +93,10 @@ def _accumulate(box: GridBox, origins, dirs, near, far, step, counts, chunk_samp
     smaller: a segment that only clips a corner of a partly filled voxel does not count)."""
     if origins.shape[0] == 0:
         return
+    n = counts.numel()
     for _, flat, keep in _marching_cells(box, origins, dirs, near, far, step, chunk_samples, core):
-        counts += torch.bincount(flat[keep].long(), minlength=counts.numel())
+        # samples that do not count go to one extra bin (cheaper than selecting the others)
+        counts += torch.bincount(flat.masked_fill_(~keep, n).long().reshape(-1), minlength=n + 1)[:n]
 
 
 def _depth_normals(x: np.ndarray, valid: np.ndarray, c: np.ndarray, max_jump: np.ndarray, tol: float,
