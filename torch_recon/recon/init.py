@@ -331,15 +331,34 @@ def fov_xy(width: int, height: int, fov_rad: float, fov_axis: str):
     return 2.0 * math.atan(math.tan(0.5 * fov_rad) * width / height), fov_rad
 
 
+#: spots whose secondary rays must cross a voxel outside the camera's view for it to count as measured
+MIN_SPOTS_BEYOND_VIEW = 2
+
+
 def in_view(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_axis: str) -> torch.Tensor:
-    """Voxels (nx, ny, nz) bool whose centre projects into the sensor image (in front of the sensor)."""
+    """Voxels (nx, ny, nz) bool some measurement reaches: the centre projects into the sensor image (camera
+    rays; and the secondary rays of spots inside the view, which stay in the convex view), or a secondary
+    segment x -> l (lit or shadowed) of a spot outside the view crosses the voxel (a laser scanning a wider
+    field than the camera sees: its light passes objects beside the sensor) from at least two spots: one
+    spot's shadow bounds a blocker's direction, not its depth (a one-view silhouette; inside the view the
+    camera rays bound it), so space only one spot reaches stays unobserved."""
     from ..contract.frames import project_points
 
-    pts = box.centres().reshape(-1, 3).cpu().numpy()
-    col, row, _ = project_points(camera_to_world, data.width, data.height, fov_rad, pts, fov_axis)
-    col, row = np.nan_to_num(col, nan=-1.0), np.nan_to_num(row, nan=-1.0)
-    ok = (col >= 0) & (col < data.width) & (row >= 0) & (row < data.height)
-    return torch.as_tensor(ok.reshape(box.shape), device=data.pixel_dirs.device)
+    def projects(pts, front_only=False):
+        col, row, depth = project_points(camera_to_world, data.width, data.height, fov_rad, pts, fov_axis)
+        col, row = np.nan_to_num(col, nan=-1.0), np.nan_to_num(row, nan=-1.0)
+        return (col >= 0) & (col < data.width) & (row >= 0) & (row < data.height) & ((depth > 0) | (not front_only))
+
+    ok = torch.as_tensor(projects(box.centres().reshape(-1, 3).cpu().numpy()), device=data.pixel_dirs.device)
+    outside = ~torch.as_tensor(projects(data.spot_points.cpu().numpy().reshape(-1, 3), True), device=ok.device)
+    spots_crossing = torch.zeros(ok.numel(), dtype=torch.long, device=ok.device)
+    for k in torch.nonzero(outside).reshape(-1).tolist():
+        crossed = torch.zeros(ok.numel(), dtype=torch.long, device=ok.device)
+        pairs = (data.lit | data.shadowed) & (data.pair_spot == k)
+        _accumulate(box, *_segments(data, pairs, 0.0), 0.5 * box.voxel, crossed)
+        spots_crossing += crossed > 0
+    ok |= spots_crossing >= MIN_SPOTS_BEYOND_VIEW
+    return ok.reshape(box.shape)
 
 
 def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0.0, view=None):
