@@ -41,6 +41,24 @@ WRITE_QUEUE = 1
 SPOT_THREADS = 2
 
 
+def keep_freed_memory() -> None:
+    """Let glibc keep freed memory for reuse instead of unmapping it: each spot allocates and frees numpy
+    temporaries of 1-70 MB, and by default each comes back from the kernel as fresh pages (page faults):
+    measured 15 % of the per-spot CPU time (system time 2.3 -> 0.65 s for 8 spots at 512 x 512; peak RSS
+    +9 MB). A no-op where the C library is not glibc."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return
+    m_trim_threshold, m_mmap_threshold = -1, -3           # malloc.h
+    mallopt(m_mmap_threshold, 256 << 20)                   # blocks below 256 MB from the heap, not mmap
+    mallopt(m_trim_threshold, 512 << 20)                   # give memory back only past 512 MB free at the top
+
+
 class WindowTooSmall(Exception):
     def __init__(self, spot_id: int, needed: int):
         super().__init__(spot_id, needed)
@@ -97,6 +115,7 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
     """Simulate and commit the dataset at out_dir; returns timings and counts."""
     t_start = time.perf_counter()
     timings = {}
+    keep_freed_memory()
     check_size(cfg)
     DatasetWriter.check_target(out_dir)     # an output folder holding others' files: refused before rendering
     scene = bpy.context.scene
@@ -286,7 +305,8 @@ def write_dataset(out_dir, plans, ctx: RunContext):
 
 def _timed_ground_truth(writer, ctx: RunContext, timings):
     t0 = time.perf_counter()
-    gt = ground_truth.write_ground_truth(writer, ctx.mesh, ctx.sensor, ctx.cfg, ctx.objects, ctx.room_mesh)
+    ranges = ctx.sampler.rays.range_image if ctx.sampler is not None else None     # Embree, not trimesh
+    gt = ground_truth.write_ground_truth(writer, ctx.mesh, ctx.sensor, ctx.cfg, ctx.objects, ctx.room_mesh, ranges)
     timings["ground_truth_s"] = time.perf_counter() - t0
     return gt
 

@@ -22,6 +22,8 @@ import numpy as np
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
+from torch_recon.contract.frames import camera_ray_directions
+
 #: offset of shadow-ray ends off the surfaces (m): keeps a sample out of its own shadow test
 RAY_EPS_M = 1e-4
 
@@ -35,6 +37,8 @@ class SceneRays:
         self.triangles = v[f].astype(np.float32)
         n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
         self.face_normals = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+        self.plane_offset = np.einsum("ij,ij->i", v[f[:, 0]], self.face_normals)    # n . x of each face's plane
+        self._camera_dirs = (None, None)          # (key, unit directions) of the last range_image size
         self.face_albedo = None if face_albedo is None else np.asarray(face_albedo, np.float64)
         # (T, 3, 3) shading normals at the corners (blender_scene.world_geometry); None: flat faces
         self.corner_normals = None if corner_normals is None else np.asarray(corner_normals, np.float32)
@@ -68,6 +72,25 @@ class SceneRays:
         n_len = np.linalg.norm(n, axis=1, keepdims=True)
         n = np.where(n_len > 1e-12, n / np.maximum(n_len, 1e-30), self.face_normals[fi])
         return hit, dist, face, n
+
+    def range_image(self, c2w, width: int, height: int, fov_rad: float, fov_axis: str = "x") -> np.ndarray:
+        """Range along each pixel-centre ray (H, W), inf where nothing is hit: analytic.range_image's
+        numbers (rays start RAY_EPS_M ahead; the range is the float64 distance to the hit triangle's
+        plane, as trimesh computes it), without trimesh's per-call overhead (ground-truth views)."""
+        c2w = np.asarray(c2w, np.float64)
+        key = (width, height, fov_rad, fov_axis)
+        if self._camera_dirs[0] != key:
+            self._camera_dirs = (key, camera_ray_directions(width, height, fov_rad, fov_axis).reshape(-1, 3))
+        d = self._camera_dirs[1] @ c2w[:3, :3].T
+        c = c2w[:3, 3]
+        face = self.scene.run((c + RAY_EPS_M * d).astype(np.float32), d.astype(np.float32))
+        out = np.full(len(d), np.inf)
+        hit = np.flatnonzero(np.asarray(face) >= 0)
+        f = np.asarray(face)[hit]
+        n = self.face_normals[f]
+        # ray c + t d meets the plane n . x = k at t = (k - n . c) / (n . d)
+        out[hit] = (self.plane_offset[f] - n @ c) / np.einsum("ij,ij->i", d[hit], n)
+        return out.reshape(height, width)
 
     def unoccluded(self, a, b) -> np.ndarray:
         """True where the open segment a -> b (N, 3) is free of triangles."""
