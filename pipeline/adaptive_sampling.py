@@ -30,7 +30,7 @@ import warnings
 import numpy as np
 from scipy.ndimage import binary_dilation
 
-from pipeline.spot_shading import SceneRays
+from pipeline.spot_shading import SceneRays, ShadingSamples
 from torch_recon.contract.frames import focal_length_px
 
 _NEIGHBOURS_8 = np.ones((3, 3), bool)
@@ -243,30 +243,31 @@ class RefinedGeometry:
         self.base_valid = valid.reshape(s, -1)
         self.offsets = stratified_offsets(self.side)
         p = sensor.width * sensor.height
-        self.row_of = np.full(p, -1, np.int64)         # pixel -> row of the cache arrays
-        self.x = np.zeros((0, self.n, 3), np.float32)
-        self.nrm = np.zeros((0, self.n, 3), np.float32)
-        self.alb = np.zeros((0, self.n), np.float32)
+        self.row_of = np.full(p, -1, np.int64)         # pixel -> row of the cache
+        # the cache: per row n samples, flattened (row * n + k), their spot-independent shading parts
+        self.sensor_origin = np.asarray(sensor.sensor_origin, np.float64)
+        self.prepared = ShadingSamples(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), self.sensor_origin)
         self.valid = np.zeros((0, self.n), bool)
         self._lock = threading.Lock()      # spots are shaded in threads; the cache grows under the lock
 
-    def samples(self, pixels: np.ndarray):
-        """(x (M, n, 3), normal (M, n, 3), albedo (M, n), valid (M, n)) of flat pixel indices (M,)."""
+    def shading_samples(self, pixels: np.ndarray):
+        """(ShadingSamples of the valid samples, valid (M, n)) of flat pixel indices (M,), in the order of
+        valid (M, n)'s True entries."""
+        pixels = np.asarray(pixels, np.int64)
         with self._lock:
-            return self._samples(np.asarray(pixels, np.int64))
-
-    def _samples(self, pixels: np.ndarray):
-        new = np.unique(pixels[self.row_of[pixels] < 0])
-        if len(new):
-            parts = [self._cast(new[a:a + CHUNK_PIXELS]) for a in range(0, len(new), CHUNK_PIXELS)]
-            x, nrm, alb, val = (np.concatenate(z) for z in zip(*parts))
-            self.row_of[new] = len(self.x) + np.arange(len(new))
-            self.x = np.concatenate([self.x, x])
-            self.nrm = np.concatenate([self.nrm, nrm])
-            self.alb = np.concatenate([self.alb, alb])
-            self.valid = np.concatenate([self.valid, val])
+            new = np.unique(pixels[self.row_of[pixels] < 0])
+            if len(new):
+                parts = [self._cast(new[a:a + CHUNK_PIXELS]) for a in range(0, len(new), CHUNK_PIXELS)]
+                x, nrm, alb, val = (np.concatenate(z) for z in zip(*parts))
+                self.row_of[new] = len(self.valid) + np.arange(len(new))
+                fresh = ShadingSamples(x.reshape(-1, 3), nrm.reshape(-1, 3), alb.reshape(-1), self.sensor_origin)
+                self.prepared = ShadingSamples.concatenate([self.prepared, fresh])
+                self.valid = np.concatenate([self.valid, val])
+            prepared, all_valid = self.prepared, self.valid
         rows = self.row_of[pixels]
-        return self.x[rows], self.nrm[rows], self.alb[rows], self.valid[rows]
+        valid = all_valid[rows]
+        flat = rows[:, None] * self.n + np.arange(self.n)[None, :]
+        return prepared.take(flat[valid]), valid
 
     def _cast(self, pixels):
         m, n = len(pixels), self.n

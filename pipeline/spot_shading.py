@@ -126,6 +126,25 @@ class ShadingSamples:
         self.to_camera = np.linalg.norm(to_c, axis=1)
         self.ray_start = self.x + np.float32(RAY_EPS_M) * self.n
 
+    FIELDS = ("x", "n", "rho", "to_camera", "ray_start")
+
+    @classmethod
+    def _from_fields(cls, fields: dict) -> "ShadingSamples":
+        out = cls.__new__(cls)
+        out.__dict__.update(fields)
+        return out
+
+    def __len__(self) -> int:
+        return len(self.rho)
+
+    def take(self, index) -> "ShadingSamples":
+        """The samples at `index` (gathered, nothing recomputed)."""
+        return self._from_fields({k: getattr(self, k)[index] for k in self.FIELDS})
+
+    @classmethod
+    def concatenate(cls, parts) -> "ShadingSamples":
+        return cls._from_fields({k: np.concatenate([getattr(p, k) for p in parts]) for k in cls.FIELDS})
+
 
 def two_bounce_radiance(rays: SceneRays, samples: ShadingSamples, first_bounce, normal_l, rho_l: float,
                         power_w: float, laser_origin):
