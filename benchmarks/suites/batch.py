@@ -93,14 +93,14 @@ def plot(rows, settings, path):
 
 
 def readme(results: dict) -> str:
-    from benchmarks.harness.report import markdown_table, provenance
+    from benchmarks.harness.report import markdown_table
 
     cols = [("workers", "local workers"), ("scenes", "scenes"), ("resolution", "px"), ("wall_s", "wall s", ".1f"),
             ("cpu_s", "CPU s", ".1f"), ("scenes_per_hour", "scenes / hour", ".0f"), ("speedup", "speed-up", ".2f"),
             ("simulate_task_wall_s", "simulate s / task", ".1f"), ("fit_task_wall_s", "fit s / task", ".1f"),
             ("evaluate_task_wall_s", "evaluate s / task", ".1f"), ("load_1min_start", "load at start", ".1f"),
             ("days_for_100k", "days for 100k", ".0f")]
-    return markdown_table(results["rows"], cols) + "\n\n" + provenance(results)
+    return markdown_table(results["rows"], cols)    # the harness adds the provenance line
 
 
 SUITE = Suite("batch", "procedural scenes simulated + fitted + evaluated per hour with 1 and 2 local Dask workers",

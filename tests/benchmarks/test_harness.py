@@ -169,3 +169,18 @@ def test_every_suites_settings_pass_the_settings_mechanism():
     for name, suite in all_suites().items():
         for s in (suite.quick, suite.full):
             assert merged(s, {}) == s, name
+
+
+def test_every_committed_result_renders_with_one_provenance_line():
+    """A suite's own table renderer leaves the provenance line to the harness (it was printed twice)."""
+    from benchmarks.harness.cli import RESULTS_DIR, render
+    suites = all_suites()
+    rendered = 0
+    for name, suite in suites.items():
+        f = RESULTS_DIR / f"{name}.json"
+        if suite.readme is None or not f.is_file():
+            continue
+        text = render(suite, json.loads(f.read_text()))
+        assert text.count("<sub>`") == 1, name
+        rendered += 1
+    assert rendered >= 3
