@@ -223,9 +223,11 @@ def write_dataset(writer, plans, ctx: RunContext, gt_job):
     """Render (or reuse) every spot, wait for the ground truth (gt_job) and commit: one atomic dataset."""
     cfg, timings, old = ctx.cfg, ctx.timings, ctx.old
     old_files = {s.content_hash: old.root / s.transient_file for s in old.manifest.spots} if old else {}
-    # spots are shaded and binned SPOT_THREADS at a time (numpy and OpenEXR release the GIL in their
-    # loops) and their transients written by one more thread, in spot order; Cycles (shading 'cycles',
-    # the third bounce, RGB) stays on the main thread, bpy is not thread-safe
+    # spots are shaded, binned and written SPOT_THREADS at a time (numpy, Embree and OpenEXR release the
+    # GIL in their loops): on 2 cores two threads keep both busy, and a spot's windows are freed once
+    # written (a separate writer thread held up to two more spots' windows, 67 MB each at 512 x 512).
+    # Cycles (shading 'cycles', the third bounce, RGB) stays on the main thread, bpy is not thread-safe;
+    # there the transients go to a writer thread, overlapping the next spot's render
     parallel = ctx.sampler is not None and ctx.vpl is None
     reuse = {}
     for p in plans:
@@ -233,10 +235,14 @@ def write_dataset(writer, plans, ctx: RunContext, gt_job):
         reuse[p.id] = (h, old_files[h] if h in old_files and _reusable(old_files[h], old) else None)
     todo = [p for p in plans if reuse[p.id][1] is None]
 
-    def shade(p):
+    def shade(p, write: bool):
         spot_timings = {}
-        return (*simulate_spot(p, ctx.renderer, ctx.sensor, ctx.noise, ctx.geometry, ctx.window_bound,
-                               ctx.ambient_scale, cfg, ctx.vpl, spot_timings, ctx.sampler), spot_timings)
+        tr, lay = simulate_spot(p, ctx.renderer, ctx.sensor, ctx.noise, ctx.geometry, ctx.window_bound,
+                                ctx.ambient_scale, cfg, ctx.vpl, spot_timings, ctx.sampler)
+        if write:
+            _timed_write(writer, p.id, tr, lay.sample_type, spot_timings)
+            tr = None
+        return tr, lay, spot_timings
 
     with ThreadPoolExecutor(max_workers=1) as write_pool, \
             ThreadPoolExecutor(max_workers=SPOT_THREADS if parallel else 1) as spot_pool:
@@ -252,9 +258,9 @@ def write_dataset(writer, plans, ctx: RunContext, gt_job):
                 if parallel:           # keep SPOT_THREADS spots in flight, in order
                     while len(shading) < SPOT_THREADS and todo:
                         q = todo.pop(0)
-                        shading[q.id] = spot_pool.submit(shade, q)
+                        shading[q.id] = spot_pool.submit(shade, q, True)
                 else:                  # Cycles on this thread overlaps the previous spot's write
-                    result = shade(p)
+                    result = shade(p, False)
                 t1 = time.perf_counter()
                 while len(pending) >= WRITE_QUEUE:    # first: no finished spot waits in memory meanwhile
                     pending.pop(0).result()
@@ -263,7 +269,8 @@ def write_dataset(writer, plans, ctx: RunContext, gt_job):
                 result = None
                 for key, v in spot_timings.items():
                     timings[key] = timings.get(key, 0) + v
-                pending.append(write_pool.submit(_timed_write, writer, p.id, tr, lay.sample_type, timings))
+                if tr is not None:
+                    pending.append(write_pool.submit(_timed_write, writer, p.id, tr, lay.sample_type, timings))
                 del tr
                 what = "rendered"
             if layout is not None and (lay.kind, lay.window_bins) != (layout.kind, layout.window_bins):
@@ -309,7 +316,7 @@ def _timed_ground_truth(writer, triangles, labelled, rays, sensor, cfg, timings)
 def _timed_write(writer, spot_id, tr, sample_type, timings):
     t0 = time.perf_counter()
     writer.write_transient(spot_id, tr, sample_type)
-    timings["write_s"] = timings.get("write_s", 0.0) + time.perf_counter() - t0   # one writer thread
+    timings["write_s"] = timings.get("write_s", 0.0) + time.perf_counter() - t0   # one thread per dict
 
 
 def _tick(timings, key, t0):

@@ -112,8 +112,7 @@ class SceneRays:
 
 
 class ShadingSamples:
-    """Spot-independent parts of samples: positions, normals turned to the sensor, albedo, |c - x|,
-    and the shadow rays' start just off the surface (x + eps n)."""
+    """Spot-independent parts of samples: positions, normals turned to the sensor, albedo, |c - x|."""
 
     def __init__(self, x, n_x, rho_x, sensor_centre):
         c = np.asarray(sensor_centre, np.float64)
@@ -124,9 +123,8 @@ class ShadingSamples:
         self.n = np.where(back[:, None], -n, n)
         self.rho = np.asarray(rho_x, np.float32).reshape(-1)
         self.to_camera = np.linalg.norm(to_c, axis=1)
-        self.ray_start = self.x + np.float32(RAY_EPS_M) * self.n
 
-    FIELDS = ("x", "n", "rho", "to_camera", "ray_start")
+    FIELDS = ("x", "n", "rho", "to_camera")
 
     @classmethod
     def _from_fields(cls, fields: dict) -> "ShadingSamples":
@@ -159,7 +157,10 @@ def two_bounce_radiance(rays: SceneRays, samples: ShadingSamples, first_bounce, 
     cos_x_r = np.einsum("ij,ij->i", samples.n, v)            # cos_x r and cos_l r: no (N, 3) unit vectors
     cos_l_r = -(v @ n_l)
     idx = np.flatnonzero((r > 1e-6) & (cos_x_r > 0) & (cos_l_r > 0))
-    free = rays.unoccluded(samples.ray_start[idx], (l + RAY_EPS_M * np.asarray(normal_l, np.float64))[None, :])
+    start = samples.n[idx]              # shadow rays start just off the surface, x + eps n (float32)
+    start *= np.float32(RAY_EPS_M)
+    start += samples.x[idx]
+    free = rays.unoccluded(start, (l + RAY_EPS_M * np.asarray(normal_l, np.float64))[None, :])
     idx = idx[free]
     rad = np.zeros(len(r), np.float32)
     k = np.float32((rho_l / math.pi) * power_w / math.pi)
