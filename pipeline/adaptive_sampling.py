@@ -289,7 +289,7 @@ class RefinedGeometry:
         bv = self.base_valid[:, pixels].T
         xr = x.reshape(m, n, 3)
         diff = bp[:, None, :, :] - xr[:, :, None, :]                              # (m, n, S, 3)
-        dist_b = np.linalg.norm(diff, axis=-1)
+        dist_b = np.sqrt(np.einsum("mnsc,mnsc->mns", diff, diff))
         off_plane = np.abs(np.einsum("mnsc,mnc->mns", diff, fn.reshape(m, n, 3)))
         same = bv[:, None, :] & (off_plane <= 1e-3 + 0.1 * dist_b)
         dist_b = np.where(same, dist_b, np.inf)
