@@ -59,7 +59,7 @@ def footprint_path_spread(paths: np.ndarray):
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         own = np.nanmax(paths, axis=0) - np.nanmin(paths, axis=0)
-        mean = np.nanmean(paths, axis=0)
+        mean = masked_mean(paths, ~np.isnan(paths))
     own = np.where(any_valid, own, 0.0) * (side / (side - 1) if side > 1 else 1.0)
     jump = np.zeros((h, w))
     for axis in (0, 1):
@@ -126,25 +126,33 @@ def normal_breaks(normals, valid, max_angle_deg: float = 0.5) -> np.ndarray:
     return out
 
 
+def masked_mean(values, valid) -> np.ndarray:
+    """np.nanmean(where(valid, values, nan), axis=0)'s numbers (NaN where no sample is valid), without its
+    copies and warnings. values, valid (S, ...)."""
+    count = valid.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(valid, values, 0.0).sum(axis=0) / count
+
+
 def radiance_contrast(radiance, valid) -> np.ndarray:
     """Relative change of radiance across each pixel (H, W): the range of its samples, or the jump of its
     mean to a 4-neighbour's, over the larger value. radiance, valid (S, H, W)."""
+    valid = np.asarray(valid, bool)
     r = np.where(valid, np.asarray(radiance, np.float64), np.nan)
     with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        hi, lo, mean = np.nanmax(r, axis=0), np.nanmin(r, axis=0), np.nanmean(r, axis=0)
-        out = np.where(hi > 0, (hi - lo) / hi, 0.0)
+        hi, lo, mean = np.nanmax(r, axis=0), np.nanmin(r, axis=0), masked_mean(r, valid)
+        out = np.where(hi > 0, (hi - lo) / hi, 0.0)          # >= 0: the jumps below only raise it
         for axis in (0, 1):
-            a = np.take(mean, np.arange(mean.shape[axis] - 1), axis=axis)
-            b = np.take(mean, np.arange(1, mean.shape[axis]), axis=axis)
+            first = [slice(None)] * 2
+            second = [slice(None)] * 2
+            first[axis], second[axis] = slice(0, -1), slice(1, None)
+            a, b = mean[tuple(first)], mean[tuple(second)]
             top = np.fmax(a, b)
             d = np.where(top > 0, np.abs(a - b) / top, 0.0)
             d = np.where(np.isfinite(d), d, 0.0)
-            pad_lo = [(0, 0), (0, 0)]
-            pad_hi = [(0, 0), (0, 0)]
-            pad_lo[axis], pad_hi[axis] = (0, 1), (1, 0)
-            out = np.fmax(out, np.pad(d, pad_lo))
-            out = np.fmax(out, np.pad(d, pad_hi))
+            np.fmax(out[tuple(first)], d, out=out[tuple(first)])     # the pixel and its neighbour after it
+            np.fmax(out[tuple(second)], d, out=out[tuple(second)])
     return np.where(np.isfinite(out), out, 0.0)
 
 
