@@ -388,37 +388,24 @@ def bin_windows(pixels, paths, amps, n_pixels: int, sensor, window_bins: int, *,
         return start, window, needed
     flat = bins_first.reshape(-1)
     table = kernel.weight_table()
-    tap_offsets = np.arange(k_sup)[None, :] * n_pixels          # one window bin further: one row of bins_first
+    table32 = None if table is None else table.astype(np.float32)
+    amps32 = amps.astype(np.float32)
     for a in range(0, len(paths), BIN_CHUNK):      # bounded temporaries (N x K per chunk)
         b = slice(a, a + BIN_CHUNK)
         f = first[b]
-        if table is None:                           # box pulse: one bin
-            w = amps[b, None].copy()
-        else:
-            w = table[np.minimum(((v[b] - f) * TABLE_STEPS + 0.5).astype(np.int64), TABLE_STEPS)]
-            w *= amps[b, None]
         q = f - start[pixels[b]]
         q *= n_pixels
         q += pixels[b]                              # flat index of each sample's first tap in bins_first
-        idx = q[:, None] + tap_offsets
-        if f.min() < 0 or f.max() + k_sup > t:          # pulse tails past the range: cut
-            ok = (f[:, None] + np.arange(k_sup) >= 0) & (f[:, None] + np.arange(k_sup) < t)
-            idx, w = idx[ok], w[ok]
-        # ufunc.at (numpy >= 1.25 fast path) measured faster than bincount into the windows' rows
-        np.add.at(flat, idx.ravel(), w.ravel().astype(np.float32))
-    return start, window, needed
-    flat = bins_first.reshape(-1)
-    offsets = np.arange(k_sup)[None, :]
-    for a in range(0, len(paths), BIN_CHUNK):      # bounded temporaries (N x K per chunk)
-        b = slice(a, a + BIN_CHUNK)
-        f, w = kernel.tabulated_weights(paths[b])
-        w *= amps[b, None]
-        idx = (f - start[pixels[b]])[:, None] + offsets          # window bin of each tap
-        idx *= n_pixels
-        idx += pixels[b, None]
-        if f.min() < 0 or f.max() + k_sup > t:          # pulse tails past the range: cut
-            ok = (f[:, None] + offsets >= 0) & (f[:, None] + offsets < t)
-            idx, w = idx[ok], w[ok]
-        # ufunc.at (numpy >= 1.25 fast path) measured faster than bincount into the windows' rows
-        np.add.at(flat, idx.ravel(), w.ravel().astype(np.float32))
+        if table32 is None:                         # box pulse: one bin
+            w = amps32[b, None]
+        else:
+            w = table32[np.minimum(((v[b] - f) * TABLE_STEPS + 0.5).astype(np.int64), TABLE_STEPS)]
+            w *= amps32[b, None]
+        cut = f.min() < 0 or f.max() + k_sup > t    # pulse tails past the range
+        for j in range(w.shape[1]):                 # one tap at a time: no (N, K) index array
+            if cut:
+                ok = (f + j >= 0) & (f + j < t)
+                np.add.at(flat, q[ok] + j * n_pixels, w[ok, j])
+            else:
+                np.add.at(flat, q + j * n_pixels, w[:, j])
     return start, window, needed
