@@ -14,8 +14,9 @@ The paper's cave (contract/data/platonerf_cave.json via contract.reference, y-up
 
 from __future__ import annotations
 
+import hashlib
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, is_dataclass
 
 import numpy as np
 
@@ -88,12 +89,45 @@ class ExampleScene:
             off += len(p.vertices)
         return np.concatenate(verts), np.concatenate(faces), np.concatenate(alb)
 
+    def fingerprint(self) -> str:
+        """A hash of everything that defines the scene (geometry, albedos, sensor, spots, lights, overrides):
+        a cached dataset of this scene is stale when it changes."""
+        h = hashlib.sha256()
+        _feed(h, self)
+        return h.hexdigest()[:12]
+
     def trimesh(self):
         """A trimesh.Trimesh of the scene (not merged: walls stay separate slabs) and face albedo."""
         import trimesh
 
         v, f, a = self.triangles()
         return trimesh.Trimesh(v, f, process=False), a
+
+
+def _feed(h, x) -> None:
+    """Hash a scene value exactly (arrays by their bytes: repr would elide large ones)."""
+    if isinstance(x, np.ndarray):
+        a = np.ascontiguousarray(x)
+        h.update(f"{a.dtype}{a.shape}".encode())
+        h.update(a.tobytes())
+    elif is_dataclass(x):
+        h.update(type(x).__name__.encode())
+        for f in fields(x):
+            h.update(f.name.encode())
+            _feed(h, getattr(x, f.name))
+    elif isinstance(x, dict):
+        h.update(b"{")
+        for k in sorted(x, key=str):
+            _feed(h, k)
+            _feed(h, x[k])
+        h.update(b"}")
+    elif isinstance(x, (list, tuple)):
+        h.update(b"[")
+        for v in x:
+            _feed(h, v)
+        h.update(b"]")
+    else:
+        h.update(repr(x).encode())
 
 
 # -- geometry builders ----------------------------------------------------------------

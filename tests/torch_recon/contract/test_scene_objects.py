@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from torch_recon.contract import scenes
@@ -71,3 +73,18 @@ def test_outside_fov_column_is_out_of_view_and_shadows_visible_pixels():
     without = render_two_bounce(concat(room_walls() + chair()), sensor, lds).sum(-1) > 0
     shadowed_by_column = (without & ~with_column).sum(axis=(1, 2))
     assert np.all(shadowed_by_column > 0.05 * 24 * 24), shadowed_by_column
+
+
+def test_scene_fingerprint_is_stable_and_sees_every_edit():
+    """The benchmark cache keys datasets by it: an edited scene must not reuse an old simulation."""
+    import dataclasses
+
+    from torch_recon.contract.scenes import EXAMPLES
+    base = EXAMPLES["outside-fov"]()
+    assert base.fingerprint() == EXAMPLES["outside-fov"]().fingerprint()
+    assert len({EXAMPLES[n]().fingerprint() for n in EXAMPLES}) == len(EXAMPLES)
+    moved = copy.deepcopy(base)
+    moved.parts[-1].vertices[0, 0] += 1e-6                       # one vertex of the column, a micrometre
+    spots = dataclasses.replace(base, spot_targets=[*base.spot_targets[:-1], (0.0, 3.9, -1.0)])
+    dark = dataclasses.replace(base, config_overrides={"ambient_per_bin": 0.01})
+    assert len({base.fingerprint(), moved.fingerprint(), spots.fingerprint(), dark.fingerprint()}) == 4
