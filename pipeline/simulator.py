@@ -31,8 +31,8 @@ from pipeline.spot_planning import (DEFAULT_ALBEDO, LASER_POWER_W, SimulationErr
 from pipeline.spot_samples import SpotSampler, windows_to_dense
 from pipeline.spot_shading import SceneRays
 from torch_recon.contract import ground_truth
-from torch_recon.contract.dataset import (DatasetError, DatasetWriter, Manifest, NoiseSpec, Provenance, SensorSpec,
-                                          Spot, TransientLayout, load_dataset, transient_relpath)
+from torch_recon.contract.dataset import (DatasetError, DatasetWriter, GroundTruth, Manifest, NoiseSpec, Provenance,
+                                          SensorSpec, Spot, TransientLayout, load_dataset, transient_relpath)
 
 SIM_VERSION = "1.2"   # 1.1: deferred Lambertian shading, adaptive edge sampling; 1.2: edge samples shade with corner normals
 RGB_POWER_W = 100.0          # point light of the RGB-shadow images (exposure only)
@@ -305,6 +305,8 @@ def write_dataset(writer, plans, ctx: RunContext, gt_job):
 def _timed_ground_truth(writer, triangles, labelled, rays, sensor, cfg, timings):
     """Mesh, labelled objects, test-view placement and range images (Embree, not trimesh's ray casts)."""
     t0 = time.perf_counter()
+    if not (cfg.train_depth or cfg.gt_mesh or cfg.test_views_dolly + cfg.test_views_orbit > 0):
+        return GroundTruth()       # --no-gt: what write_ground_truth would return, without importing trimesh
     mesh = ground_truth.scene_mesh(triangles[0], triangles[1])
     objects = ground_truth.object_meshes(*triangles, labelled=labelled)
     gt = ground_truth.write_ground_truth(writer, mesh, sensor, cfg, objects, ground_truth.room_mesh(triangles, objects),
