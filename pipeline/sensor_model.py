@@ -270,6 +270,7 @@ def apply_sensor_windows(start, window, sensor: SensorSpec, noise: NoiseSpec, rn
     if (h, w) != (sensor.height, sensor.width) or start.shape != (h, w) or not 1 <= g <= t:
         raise ValueError(f"expected start (H, W) and window (H, W, G<= {t}) of the {sensor.height}x{sensor.width} "
                          f"sensor, got {start.shape} and {window.shape}")
+    hi = 0.0
     if window.size:
         lo, hi = float(window.min()), float(window.max())
         if not (math.isfinite(lo) and math.isfinite(hi)) or lo < 0:
@@ -278,12 +279,15 @@ def apply_sensor_windows(start, window, sensor: SensorSpec, noise: NoiseSpec, rn
         raise ValueError(f"sample_type: expected 'float32' or 'float16', got {sample_type!r}")
     flat = window.reshape(h * w, g)
     scale = photon_scale(flat.sum(axis=1, dtype=np.float64).reshape(h, w), noise, first_bounce_pixel)
-    if not float(flat.max(initial=0.0)) * scale <= np.finfo(np.float32).max:
+    if not max(hi, 0.0) * scale <= np.finfo(np.float32).max:
         raise ValueError("photons_per_pixel: the scaled transient overflows float32; lower photons_per_pixel")
     out = flat if in_place and window.dtype == np.float32 else np.empty_like(flat)
-    for a in range(0, h * w, CHUNK_PIXELS):
-        b = min(a + CHUNK_PIXELS, h * w)
-        _detect(flat[a:b], scale, None, noise, rng, out=out[a:b])
+    if noise.photon_counts:
+        for a in range(0, h * w, CHUNK_PIXELS):          # chunks bound the Poisson draws' temporaries
+            b = min(a + CHUNK_PIXELS, h * w)
+            _detect(flat[a:b], scale, None, noise, rng, out=out[a:b])
+    else:                                               # one pass in memory order (windows may be bins-first)
+        _detect(flat, scale, None, noise, rng, out=out)
     out = _stored_as(out, sample_type)
     tr = Transient(start, out.reshape(h, w, g), t)
     return tr, TransientLayout(kind="dense" if g == t else "windowed", window_bins=g, sample_type=sample_type)

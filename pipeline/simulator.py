@@ -17,7 +17,7 @@ import math
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 
 import bpy
 import numpy as np
@@ -29,9 +29,10 @@ from pipeline.spot_planning import (DEFAULT_ALBEDO, LASER_POWER_W, SimulationErr
                                     check_spots_in_view, first_bounce_pixel, log, noise_spec, plan_spots, sensor_spec,
                                     window_bins_bound)
 from pipeline.spot_samples import SpotSampler, windows_to_dense
+from pipeline.spot_shading import SceneRays
 from torch_recon.contract import ground_truth
-from torch_recon.contract.dataset import (DatasetError, DatasetWriter, Manifest, NoiseSpec, Provenance, SensorSpec,
-                                          Spot, TransientLayout, load_dataset, transient_relpath)
+from torch_recon.contract.dataset import (DatasetError, DatasetWriter, GroundTruth, Manifest, NoiseSpec, Provenance,
+                                          SensorSpec, Spot, TransientLayout, load_dataset, transient_relpath)
 
 SIM_VERSION = "1.2"   # 1.1: deferred Lambertian shading, adaptive edge sampling; 1.2: edge samples shade with corner normals
 RGB_POWER_W = 100.0          # point light of the RGB-shadow images (exposure only)
@@ -85,11 +86,8 @@ class RunContext:
     ambient_scale: np.ndarray | None
     common: dict
     old: object
-    mesh: object
     vpl: object
     timings: dict
-    objects: dict = field(default_factory=dict)   # {label: (trimesh, part names)}: the GT writer's objects
-    room_mesh: object = None                      # the GT without those objects
     sampler: object = None                        # SpotSampler (shading 'lambertian')
 
 
@@ -124,59 +122,74 @@ def run(cfg, out_dir, scene_label: str, keep_requested: bool) -> dict:
     plans = plan_spots(cfg, scene, depsgraph, sensor, keep_requested)
     check_spots_in_view(plans, sensor)
 
-    renderer = CyclesRenderer(scene, cam, cfg.width, cfg.height, side, seed=cfg.seed)
-    try:
-        t0 = time.perf_counter()
-        geometry = renderer.render_geometry()
-        timings["geometry_pass_s"] = time.perf_counter() - t0
-        for p in plans:
-            first_bounce_pixel(p, sensor, scene, depsgraph, geometry)
-        t0 = time.perf_counter()
-        g_bound = window_bins_bound(plans, sensor, geometry, cfg.footprint_radius_m,
-                                    neighbourhood=cfg.shading == "lambertian" and cfg.adaptive_subpixel_samples > 0)
-        if cfg.bounces == 3:      # third-order light spreads over long paths: keep every bin
-            g_bound = sensor.bins
-        _tick(timings, "window_bound_s", t0)
-        ambient = renderer.render_ambient() if (cfg.ambient_per_bin > 0) else None
-        ambient_scale = None
-        if ambient is not None:
-            valid_px = geometry[3].any(axis=0)
-            mean = float(ambient[valid_px].mean()) if valid_px.any() else 0.0
-            ambient_scale = (ambient / mean if mean > 0 else np.ones_like(ambient)).astype(np.float64)
-        albedos = [bs.object_albedo(bpy.data.objects[n]) or DEFAULT_ALBEDO for n in triangles[3]]
-        common = {"version": SIM_VERSION, "sensor": asdict(sensor), "noise": asdict(noise), "seed": cfg.seed,
-                  "bounces": cfg.bounces, "footprint": cfg.footprint_radius_m, "window_bound": g_bound,
-                  "geometry": geometry_hash(triangles, geometry, albedos), "shading": cfg.shading,
-                  "subpixel": cfg.subpixel_samples, "adaptive": cfg.adaptive_subpixel_samples,
-                  "adaptive_spread_bins": cfg.adaptive_spread_bins,
-                  "ambient": None if ambient_scale is None else hashlib.sha256(ambient_scale.tobytes()).hexdigest()}
-        ctx = RunContext(cfg, scene_label, renderer, sensor, noise, geometry, g_bound, ambient_scale, common,
-                         _previous_dataset(out_dir), ground_truth.scene_mesh(triangles[0], triangles[1]),
-                         third_bounce.ThirdBounce(scene, depsgraph, cfg) if cfg.bounces == 3 else None, timings)
-        ctx.objects = ground_truth.object_meshes(*triangles, labelled=bs.labelled_objects())
-        ctx.room_mesh = ground_truth.room_mesh(triangles, ctx.objects)
-        if cfg.shading == "lambertian":
-            t0 = time.perf_counter()
-            ctx.sampler = SpotSampler(sensor, geometry, triangles, albedos, cfg.adaptive_subpixel_samples,
-                                      cfg.adaptive_spread_bins, LASER_POWER_W, corner_normals=corner_normals)
-            _tick(timings, "ray_setup_s", t0)
-        while True:   # a second pass only if a spot's signal outgrew the geometric window bound
-            try:
-                write_dataset(out_dir, plans, ctx)
-                break
-            except WindowTooSmall as exc:
-                # 25 % headroom so one more pass is very likely enough
-                ctx.window_bound = min(max(int(math.ceil(1.25 * exc.needed)), ctx.window_bound + 1), sensor.bins)
-                common["window_bound"] = ctx.window_bound
-                log(f"note: spot {exc.spot_id} needs {exc.needed} bins per pixel; writing again with "
-                    f"{ctx.window_bound}")
-    finally:
-        renderer.close()
+    more_renders = (cfg.shading != "lambertian" or cfg.bounces == 3 or cfg.rgb or cfg.ambient_per_bin > 0)
+    renderer = CyclesRenderer(scene, cam, cfg.width, cfg.height, side, seed=cfg.seed, persistent_data=more_renders)
+    # the ground truth needs no spot: it runs on its own thread from after the Cycles pass (beside it, its
+    # Python would make Cycles wait for the GIL) to the end; leaving the block waits for it, then the
+    # writer discards everything unless committed
+    with DatasetWriter(out_dir) as writer, ThreadPoolExecutor(max_workers=1) as gt_pool:
+        try:
+            _simulate(cfg, scene, depsgraph, renderer, sensor, noise, triangles, corner_normals, plans, scene_label,
+                      out_dir, writer, gt_pool, timings)
+        finally:
+            renderer.close()
     timings["total_s"] = time.perf_counter() - t_start
     log("timings: " + ", ".join(f"{k} {v:.2f}" for k, v in timings.items() if not k.endswith("_pixels")))
     log(f"adaptive sampling (pixel-spots): {timings.get('edge_pixels', 0)} edge pixels re-sampled, "
         f"{timings.get('spread_pixels', 0)} smooth wide-spread pixels interpolated")
     return {"spots": len(plans), "timings": timings}
+
+
+def _simulate(cfg, scene, depsgraph, renderer, sensor, noise, triangles, corner_normals, plans, scene_label, out_dir,
+              writer, gt_pool, timings):
+    t0 = time.perf_counter()
+    geometry = renderer.render_geometry()
+    timings["geometry_pass_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    albedos = [bs.object_albedo(bpy.data.objects[n]) or DEFAULT_ALBEDO for n in triangles[3]]
+    rays = SceneRays(triangles[0], triangles[1], np.asarray(albedos, np.float64)[np.asarray(triangles[2], np.int64)],
+                     corner_normals)      # Embree: shadow rays, edge samples and the ground truth's ranges
+    gt_job = gt_pool.submit(_timed_ground_truth, writer, triangles, bs.labelled_objects(), rays, sensor, cfg,
+                            timings)
+    _tick(timings, "ray_setup_s", t0)
+    for p in plans:
+        first_bounce_pixel(p, sensor, scene, depsgraph, geometry)
+    t0 = time.perf_counter()
+    g_bound = window_bins_bound(plans, sensor, geometry, cfg.footprint_radius_m,
+                                neighbourhood=cfg.shading == "lambertian" and cfg.adaptive_subpixel_samples > 0)
+    if cfg.bounces == 3:      # third-order light spreads over long paths: keep every bin
+        g_bound = sensor.bins
+    _tick(timings, "window_bound_s", t0)
+    ambient = renderer.render_ambient() if (cfg.ambient_per_bin > 0) else None
+    ambient_scale = None
+    if ambient is not None:
+        valid_px = geometry[3].any(axis=0)
+        mean = float(ambient[valid_px].mean()) if valid_px.any() else 0.0
+        ambient_scale = (ambient / mean if mean > 0 else np.ones_like(ambient)).astype(np.float64)
+    common = {"version": SIM_VERSION, "sensor": asdict(sensor), "noise": asdict(noise), "seed": cfg.seed,
+              "bounces": cfg.bounces, "footprint": cfg.footprint_radius_m, "window_bound": g_bound,
+              "geometry": geometry_hash(triangles, geometry, albedos), "shading": cfg.shading,
+              "subpixel": cfg.subpixel_samples, "adaptive": cfg.adaptive_subpixel_samples,
+              "adaptive_spread_bins": cfg.adaptive_spread_bins,
+              "ambient": None if ambient_scale is None else hashlib.sha256(ambient_scale.tobytes()).hexdigest()}
+    ctx = RunContext(cfg, scene_label, renderer, sensor, noise, geometry, g_bound, ambient_scale, common,
+                     _previous_dataset(out_dir),
+                     third_bounce.ThirdBounce(scene, depsgraph, cfg) if cfg.bounces == 3 else None, timings)
+    if cfg.shading == "lambertian":
+        t0 = time.perf_counter()
+        ctx.sampler = SpotSampler(sensor, geometry, triangles, albedos, cfg.adaptive_subpixel_samples,
+                                  cfg.adaptive_spread_bins, LASER_POWER_W, rays=rays)
+        _tick(timings, "ray_setup_s", t0)
+    while True:   # a second pass only if a spot's signal outgrew the geometric window bound
+        try:
+            write_dataset(writer, plans, ctx, gt_job)
+            break
+        except WindowTooSmall as exc:
+            # 25 % headroom so one more pass is very likely enough
+            ctx.window_bound = min(max(int(math.ceil(1.25 * exc.needed)), ctx.window_bound + 1), sensor.bins)
+            common["window_bound"] = ctx.window_bound
+            log(f"note: spot {exc.spot_id} needs {exc.needed} bins per pixel; writing again with "
+                f"{ctx.window_bound}")
 
 
 def _reusable(path, old) -> bool:
@@ -206,13 +219,15 @@ def check_size(cfg) -> None:
                               f"exceed Cycles' 65536 x 65536 render limit")
 
 
-def write_dataset(out_dir, plans, ctx: RunContext):
-    """Render (or reuse) every spot, write ground truth and commit: one atomic dataset."""
+def write_dataset(writer, plans, ctx: RunContext, gt_job):
+    """Render (or reuse) every spot, wait for the ground truth (gt_job) and commit: one atomic dataset."""
     cfg, timings, old = ctx.cfg, ctx.timings, ctx.old
     old_files = {s.content_hash: old.root / s.transient_file for s in old.manifest.spots} if old else {}
-    # spots are shaded and binned SPOT_THREADS at a time (numpy and OpenEXR release the GIL in their
-    # loops) and their transients written by one more thread, in spot order; Cycles (shading 'cycles',
-    # the third bounce, RGB) stays on the main thread, bpy is not thread-safe
+    # spots are shaded, binned and written SPOT_THREADS at a time (numpy, Embree and OpenEXR release the
+    # GIL in their loops): on 2 cores two threads keep both busy, and a spot's windows are freed once
+    # written (a separate writer thread held up to two more spots' windows, 67 MB each at 512 x 512).
+    # Cycles (shading 'cycles', the third bounce, RGB) stays on the main thread, bpy is not thread-safe;
+    # there the transients go to a writer thread, overlapping the next spot's render
     parallel = ctx.sampler is not None and ctx.vpl is None
     reuse = {}
     for p in plans:
@@ -220,14 +235,18 @@ def write_dataset(out_dir, plans, ctx: RunContext):
         reuse[p.id] = (h, old_files[h] if h in old_files and _reusable(old_files[h], old) else None)
     todo = [p for p in plans if reuse[p.id][1] is None]
 
-    def shade(p):
+    def shade(p, write: bool):
         spot_timings = {}
-        return (*simulate_spot(p, ctx.renderer, ctx.sensor, ctx.noise, ctx.geometry, ctx.window_bound,
-                               ctx.ambient_scale, cfg, ctx.vpl, spot_timings, ctx.sampler), spot_timings)
+        tr, lay = simulate_spot(p, ctx.renderer, ctx.sensor, ctx.noise, ctx.geometry, ctx.window_bound,
+                                ctx.ambient_scale, cfg, ctx.vpl, spot_timings, ctx.sampler)
+        if write:
+            _timed_write(writer, p.id, tr, lay.sample_type, spot_timings)
+            tr = None
+        return tr, lay, spot_timings
 
-    with DatasetWriter(out_dir) as writer, ThreadPoolExecutor(max_workers=1) as write_pool, \
+    with ThreadPoolExecutor(max_workers=1) as write_pool, \
             ThreadPoolExecutor(max_workers=SPOT_THREADS if parallel else 1) as spot_pool:
-        spots, rgb_files, layout, pending, shading, gt_job = [], [], None, [], {}, None
+        spots, rgb_files, layout, pending, shading = [], [], None, [], {}
         for k, p in enumerate(plans):
             t0 = time.perf_counter()
             h, reused = reuse[p.id]
@@ -239,11 +258,9 @@ def write_dataset(out_dir, plans, ctx: RunContext):
                 if parallel:           # keep SPOT_THREADS spots in flight, in order
                     while len(shading) < SPOT_THREADS and todo:
                         q = todo.pop(0)
-                        shading[q.id] = spot_pool.submit(shade, q)
-                    if not todo and gt_job is None:     # the ground truth overlaps the last spots
-                        gt_job = spot_pool.submit(_timed_ground_truth, writer, ctx, timings)
+                        shading[q.id] = spot_pool.submit(shade, q, True)
                 else:                  # Cycles on this thread overlaps the previous spot's write
-                    result = shade(p)
+                    result = shade(p, False)
                 t1 = time.perf_counter()
                 while len(pending) >= WRITE_QUEUE:    # first: no finished spot waits in memory meanwhile
                     pending.pop(0).result()
@@ -252,7 +269,8 @@ def write_dataset(out_dir, plans, ctx: RunContext):
                 result = None
                 for key, v in spot_timings.items():
                     timings[key] = timings.get(key, 0) + v
-                pending.append(write_pool.submit(_timed_write, writer, p.id, tr, lay.sample_type, timings))
+                if tr is not None:
+                    pending.append(write_pool.submit(_timed_write, writer, p.id, tr, lay.sample_type, timings))
                 del tr
                 what = "rendered"
             if layout is not None and (lay.kind, lay.window_bins) != (layout.kind, layout.window_bins):
@@ -269,7 +287,7 @@ def write_dataset(out_dir, plans, ctx: RunContext):
             log(f"spot {k + 1}/{len(plans)} (id {p.id}, {p.name}): l = {np.round(p.first_bounce, 3).tolist()}, "
                 f"albedo {p.albedo:.2f}, {what} in {dt:.2f} s")
         t0 = time.perf_counter()
-        gt = gt_job.result() if gt_job is not None else _timed_ground_truth(writer, ctx, timings)
+        gt = gt_job.result()
         for f in pending:
             f.result()
         timings["finish_wait_s"] = time.perf_counter() - t0
@@ -284,9 +302,15 @@ def write_dataset(out_dir, plans, ctx: RunContext):
         writer.commit(manifest)
 
 
-def _timed_ground_truth(writer, ctx: RunContext, timings):
+def _timed_ground_truth(writer, triangles, labelled, rays, sensor, cfg, timings):
+    """Mesh, labelled objects, test-view placement and range images (Embree, not trimesh's ray casts)."""
     t0 = time.perf_counter()
-    gt = ground_truth.write_ground_truth(writer, ctx.mesh, ctx.sensor, ctx.cfg, ctx.objects, ctx.room_mesh)
+    if not (cfg.train_depth or cfg.gt_mesh or cfg.test_views_dolly + cfg.test_views_orbit > 0):
+        return GroundTruth()       # --no-gt: what write_ground_truth would return, without importing trimesh
+    mesh = ground_truth.scene_mesh(triangles[0], triangles[1])
+    objects = ground_truth.object_meshes(*triangles, labelled=labelled)
+    gt = ground_truth.write_ground_truth(writer, mesh, sensor, cfg, objects, ground_truth.room_mesh(triangles, objects),
+                                         rays.range_image)
     timings["ground_truth_s"] = time.perf_counter() - t0
     return gt
 
@@ -294,7 +318,7 @@ def _timed_ground_truth(writer, ctx: RunContext, timings):
 def _timed_write(writer, spot_id, tr, sample_type, timings):
     t0 = time.perf_counter()
     writer.write_transient(spot_id, tr, sample_type)
-    timings["write_s"] = timings.get("write_s", 0.0) + time.perf_counter() - t0   # one writer thread
+    timings["write_s"] = timings.get("write_s", 0.0) + time.perf_counter() - t0   # one thread per dict
 
 
 def _tick(timings, key, t0):

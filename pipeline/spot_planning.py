@@ -125,8 +125,7 @@ def first_bounce_pixel(p: SpotPlan, sensor, scene, depsgraph, geometry):
     col, row, depth = project_points(c2w, sensor.width, sensor.height, sensor.fov_rad, p.first_bounce,
                                      sensor.fov_axis)
     if not (depth > 0 and 0 <= col < sensor.width and 0 <= row < sensor.height):
-        log(f"warning: spot {p.id}: l is outside the sensor's view; no first-bounce return recorded")
-        return
+        return          # an out-of-view spot (check_spots_in_view names it): no first-bounce return
     r, cl = int(row), int(col)
     dist_lc = float(np.linalg.norm(p.first_bounce - c))
     to_l = (p.first_bounce - c) / max(dist_lc, 1e-12)
@@ -192,7 +191,9 @@ def window_bins_bound(plans, sensor, geometry, footprint_m: float, neighbourhood
 
 
 def check_spots_in_view(plans, sensor) -> None:
-    """Every spot's l must lie in the sensor's view: its first bounce locates it (else preprocess refuses)."""
+    """At least one spot's l must lie in the sensor's view: its first bounce locates it, and the visible depth
+    measured with it is what preprocessing fits an out-of-view spot's range to (first_bounce.fit_out_of_view_spot).
+    Out-of-view spots (a laser scanning a wider field than the camera sees) are allowed and named in a note."""
     c2w = np.asarray(sensor.camera_to_world)
     outside = []
     for p in plans:
@@ -200,7 +201,10 @@ def check_spots_in_view(plans, sensor) -> None:
                                          sensor.fov_axis)
         if not (depth > 0 and 0 <= col < sensor.width and 0 <= row < sensor.height):
             outside.append(f"{p.id} ({p.name})")
+    if outside and len(outside) == len(plans):
+        raise SimulationError(f"every spot lies outside the sensor's {sensor.width}x{sensor.height} view: at least one "
+                              f"must lie inside (its first bounce is measured; out-of-view spots are located from "
+                              f"the depth it gives): aim one inside the view or change the camera")
     if outside:
-        raise SimulationError(f"spot(s) {', '.join(outside)} lie outside the sensor's {sensor.width}x{sensor.height} "
-                              f"view (their first bounce cannot be measured): aim them inside the view or change "
-                              f"the width/height or the camera")
+        log(f"note: spot(s) {', '.join(outside)} lie outside the sensor's view: no first-bounce return; "
+            f"preprocessing fits their range from two-bounce arrival times")

@@ -28,7 +28,7 @@ class SpotSampler:
     """What all spots of a run share: base samples, the ray caster and the refined-sample cache."""
 
     def __init__(self, sensor, geometry, triangles, object_albedos, adaptive_samples: int, spread_bins: float,
-                 laser_power_w: float, corner_normals=None):
+                 laser_power_w: float, corner_normals=None, rays: SceneRays | None = None):
         pos, nrm, alb, valid = geometry
         self.sensor = sensor
         self.s = pos.shape[0]
@@ -39,8 +39,9 @@ class SpotSampler:
         self.alb = alb.reshape(self.s, -1, alb.shape[-1]).mean(axis=-1)
         self.valid = valid.reshape(self.s, -1)
         v, f, owner, _ = triangles
-        self.rays = SceneRays(v, f, np.asarray(object_albedos, np.float64)[np.asarray(owner, np.int64)],
-                              corner_normals)
+        # rays: the caller's SceneRays of these triangles (with face albedos and corner normals), else built here
+        self.rays = rays if rays is not None else SceneRays(
+            v, f, np.asarray(object_albedos, np.float64)[np.asarray(owner, np.int64)], corner_normals)
         self.refined = (adaptive_sampling.RefinedGeometry(self.rays, sensor, geometry, int(round(adaptive_samples ** 0.5)))
                         if adaptive_samples else None)
         self.spread_bins = float(spread_bins)
@@ -89,8 +90,8 @@ class SpotSampler:
             counts = {"edge": len(edge), "crease": int(flags["shading"].sum())}
             if len(edge):                       # new rays: shadow, depth and silhouette edges
                 keep[edge] = False
-                xr, nr, ar, vr = self.refined.samples(edge)
-                rad_r, path_r = self._shade(xr, nr, ar, vr, spot)                      # (M, n)
+                prepared, vr = self.refined.shading_samples(edge)
+                rad_r, path_r = self._shade(None, None, None, vr, spot, prepared)        # (M, n)
                 add(edge, path_r, rad_r)
             spread = np.flatnonzero(flags["spread"].reshape(-1) & self.valid.all(axis=0))
             counts["spread"] = len(spread)

@@ -1,7 +1,10 @@
 """The first-bounce return and sub-bin peaks (step 1 and 5 of torch_recon/preprocess.py's docstring).
 
 find_first_bounce locates l_k, the point the laser hits, from the brightest return along the laser
-ray and measures the pulse there; the sub-bin peak model (a bin-integrated Gaussian whose width is
+ray and measures the pulse there. A spot outside the sensor's view (a laser scanning a wider field than
+the camera sees) has no first-bounce return: fit_out_of_view_spot fits its range along the known laser
+direction to its two-bounce arrival times at pixels whose depth the in-view spots measured.
+The sub-bin peak model (a bin-integrated Gaussian whose width is
 fitted to that pulse) refines both the first-bounce path and every two-bounce peak.
 """
 
@@ -98,6 +101,7 @@ class FirstBounce:
     pulse: np.ndarray       # (2h + 1,) unit sum
     pulse_sigma_bins: float
     peak_bin: int
+    range_fit: dict | None = None   # out-of-view spots: how the range was fitted (fit_out_of_view_spot)
 
 
 def _read_bins(tr: Transient, rows, cols, bins):
@@ -116,17 +120,13 @@ def _pixel_dense(tr: Transient, row, col) -> np.ndarray:
     return out
 
 
-def find_first_bounce(tr: Transient, sensor, laser_direction, spot_id, settings: PreprocessSettings,
-                      method: str | None = None) -> FirstBounce:
-    """Locate l_k from the brightest return along the laser ray (see the module docstring)."""
+def _laser_ray_samples(sensor, ld):
+    """Samples o + d ld of the laser ray: d, their pixel (row, col), first-bounce bin, and which the sensor sees."""
     c2w = np.asarray(sensor.camera_to_world, np.float64)
     c, o = c2w[:3, 3], np.asarray(sensor.laser_origin, np.float64)
-    ld = np.asarray(laser_direction, np.float64)
-    ld = ld / np.linalg.norm(ld)
     w, h, bw = sensor.width, sensor.height, sensor.bin_width_m
     f = focal_length_px(w, h, sensor.fov_rad, sensor.fov_axis)
-    q = o - c
-    d_max = 0.5 * (sensor.end_m + np.linalg.norm(q))
+    d_max = 0.5 * (sensor.end_m + np.linalg.norm(o - c))
     n = int(min(200_000, max(256, math.ceil(d_max / (0.25 * bw)))))
     d = np.linspace(1e-3, d_max, n)
     pts = o + d[:, None] * ld
@@ -138,6 +138,26 @@ def find_first_bounce(tr: Transient, sensor, laser_direction, spot_id, settings:
     row = np.floor(0.5 * h - f * pc[:, 1] / z).astype(np.int64)
     kb = np.floor((path - sensor.start_m) / bw).astype(np.int64)
     ok = front & (col >= 0) & (col < w) & (row >= 0) & (row < h) & (kb >= 0) & (kb < sensor.bins)
+    return d, row, col, kb, ok
+
+
+def laser_ray_seen(sensor, laser_direction) -> bool:
+    """Whether any point of the laser ray within the histogram range projects into the image (else the
+    spot is out of view: no first-bounce return can be recorded; see fit_out_of_view_spot)."""
+    ld = np.asarray(laser_direction, np.float64)
+    return bool(_laser_ray_samples(sensor, ld / np.linalg.norm(ld))[4].any())
+
+
+def find_first_bounce(tr: Transient, sensor, laser_direction, spot_id, settings: PreprocessSettings,
+                      method: str | None = None) -> FirstBounce:
+    """Locate l_k from the brightest return along the laser ray (see the module docstring)."""
+    c2w = np.asarray(sensor.camera_to_world, np.float64)
+    c, o = c2w[:3, 3], np.asarray(sensor.laser_origin, np.float64)
+    ld = np.asarray(laser_direction, np.float64)
+    ld = ld / np.linalg.norm(ld)
+    w, h, bw = sensor.width, sensor.height, sensor.bin_width_m
+    q = o - c
+    _, row, col, kb, ok = _laser_ray_samples(sensor, ld)
     if not ok.any():
         raise PreprocessError(f"spot {spot_id}: the laser ray never crosses the sensor's view within the "
                               f"histogram range; no first bounce can be seen")
@@ -186,3 +206,67 @@ def find_first_bounce(tr: Transient, sensor, laser_direction, spot_id, settings:
     dist = (p1 * p1 - float(q @ q)) / den
     return FirstBounce(point=o + dist * ld, distance=dist, path_m=p1, pixel=(r0, c0), pulse=pulse,
                        pulse_sigma_bins=sigma, peak_bin=k1)
+
+
+# ---------------------------------------------------------------- out-of-view spot
+
+#: fewest lit pixels of known depth an out-of-view spot's range fit accepts
+MIN_RANGE_FIT_PIXELS = 50
+
+
+def fit_out_of_view_spot(sensor, laser_direction, spot_id, path, points, reference: FirstBounce,
+                         tolerance_m: float | None = None, max_grid_pixels: int = 4000, seed: int = 0) -> FirstBounce:
+    """l = o + d ld of a spot the sensor cannot see, from its two-bounce arrival times.
+
+    path (H, W): the spot's measured two-bounce optical path (NaN where no peak); points (H, W, 3): the
+    visible surface point of each pixel, measured with the in-view spots (NaN unknown). Each pixel gives
+    t = d + |o + d ld - x| + |x - c|, one equation in the single unknown d (closed form per pixel:
+    d = (R^2 - |q|^2) / (2 (R + q.ld)), R = t - |x - c|, q = o - x). The robust fit: a grid over d scored
+    by the truncated squared residual (max_grid_pixels seeded pixels), then scipy's least_squares with
+    a soft-L1 loss over all pixels. `reference`: an in-view spot's first bounce, whose pulse is the
+    laser's. tolerance_m: inlier residual (default one bin)."""
+    from scipy.optimize import least_squares
+
+    c = np.asarray(sensor.camera_to_world, np.float64)[:3, 3]
+    o = np.asarray(sensor.laser_origin, np.float64)
+    ld = np.asarray(laser_direction, np.float64)
+    ld = ld / np.linalg.norm(ld)
+    tol = float(tolerance_m if tolerance_m is not None else sensor.bin_width_m)
+    t = np.asarray(path, np.float64).reshape(-1)
+    x = np.asarray(points, np.float64).reshape(-1, 3)
+    ok = np.isfinite(t) & np.all(np.isfinite(x), axis=1)
+    if ok.sum() < MIN_RANGE_FIT_PIXELS:
+        raise PreprocessError(f"spot {spot_id}: the laser spot is outside the sensor's view and only {int(ok.sum())} "
+                              f"of its lit pixels have a depth measured by an in-view spot (need at least "
+                              f"{MIN_RANGE_FIT_PIXELS}); aim it where more of its light reaches the visible scene")
+    t, x = t[ok], x[ok]
+    b = t - np.linalg.norm(x - c, axis=1)             # d + |o + d ld - x|
+
+    def residual(d, xs, bs):     # d: scalar or (G, 1) against pixels (N,) / (1, N)
+        d = np.asarray(d, np.float64)[..., None]
+        return d[..., 0] + np.linalg.norm(o + d * ld - xs, axis=-1) - bs
+
+    rng = np.random.default_rng(seed)
+    sub = rng.choice(len(t), max_grid_pixels, replace=False) if len(t) > max_grid_pixels else np.arange(len(t))
+    grid = np.arange(0.0, max(float(b.max()), tol), 0.25 * tol)
+    cost = np.zeros(len(grid))
+    for i in range(0, len(grid), 256):      # (256 d values, pixels) per block
+        r = residual(grid[i:i + 256, None], x[sub][None], b[sub][None])
+        cost[i:i + 256] = np.minimum(r * r, tol * tol).sum(axis=1)
+    d0 = float(grid[int(np.argmin(cost))])
+    fit = least_squares(lambda v: residual(v[0], x, b), [d0], loss="soft_l1", f_scale=0.25 * tol,
+                        bounds=([max(d0 - 2 * tol, 0.0)], [d0 + 2 * tol]))
+    d = float(fit.x[0])
+    res = residual(d, x, b)
+    inl = np.abs(res) <= tol
+    l = o + d * ld
+    p1 = d + float(np.linalg.norm(l - c))
+    if inl.sum() < MIN_RANGE_FIT_PIXELS:
+        raise PreprocessError(f"spot {spot_id}: out of view; its two-bounce arrival times fit no single range along "
+                              f"the laser ray ({int(inl.sum())} of {len(t)} pixels within {tol:.3f} m of the best "
+                              f"range {d:.3f} m)")
+    stats = {"pixels": int(len(t)), "inliers": int(inl.sum()), "rms_m": float(np.sqrt(np.mean(res[inl] ** 2))),
+             "tolerance_m": tol}
+    return FirstBounce(point=l, distance=d, path_m=p1, pixel=None, pulse=reference.pulse,
+                       pulse_sigma_bins=reference.pulse_sigma_bins,
+                       peak_bin=int(math.floor((p1 - sensor.start_m) / sensor.bin_width_m)), range_fit=stats)

@@ -42,7 +42,8 @@ import numpy as np
 from .contract.dataset.transient import Transient
 from .contract.frames import camera_ray_directions
 from .contract.errors import PreprocessError
-from .first_bounce import FirstBounce, SubBinLUT, find_first_bounce, subbin_offset
+from .first_bounce import (FirstBounce, SubBinLUT, find_first_bounce, fit_out_of_view_spot, laser_ray_seen,
+                           subbin_offset)
 from .measurements import Measurements, SpotMeasurement
 from .shadow_decision import FilterOutput, partial_shadow_mask, photon_counting, unsupported_shadow_mask
 
@@ -68,7 +69,8 @@ class PreprocessSettings:
     shadow_false_alarm: float = 0.05  # a dark pixel next to lit ones is a shadow only where a lit pixel
                                       # that dark has a Poisson probability below this (else unlabelled; 0: off)
     same_surface_bins: float = 2.0     # neighbours count as the same surface within this many bins of path
-    chunk_elements: int = 1 << 24      # bins processed per chunk (memory bound)
+    chunk_elements: int = 1 << 20      # bins per chunk: 4 MB tensors stay in the allocator's heap (1 << 24:
+                                       # 64 MB ones were mapped afresh each time, 10.7 of 27 CPU-s at 512 px in page faults)
     compute_visible_depth: bool = True
 
     SETTINGS_META = {"refine": {"choices": ("lut", "gaussian", "parabola", "none")},
@@ -223,10 +225,12 @@ def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: Prepro
 
 
 def process_spot(tr: Transient, sensor, spot, settings: PreprocessSettings, device="cpu", dirs=None,
-                 recorded_first_bounce=None) -> SpotMeasurement:
+                 recorded_first_bounce=None, fb: FirstBounce | None = None) -> SpotMeasurement:
+    """One spot's measurements; `fb` given: its first bounce is already known (an out-of-view spot's fit)."""
     settings.validate()
     check_transient(tr, sensor, spot.id)
-    fb = find_first_bounce(tr, sensor, spot.laser_direction, spot.id, settings)
+    if fb is None:
+        fb = find_first_bounce(tr, sensor, spot.laser_direction, spot.id, settings)
     rec = recorded_first_bounce if recorded_first_bounce is not None else getattr(spot, "first_bounce", None)
     if rec is not None:
         err = float(np.linalg.norm(fb.point - np.asarray(rec, np.float64)))
@@ -240,7 +244,8 @@ def process_spot(tr: Transient, sensor, spot, settings: PreprocessSettings, devi
         dirs = world_pixel_directions(sensor)
     c = np.asarray(sensor.camera_to_world, np.float64)[:3, 3]
     excluded = parallel_mask(dirs, c, fb.point, settings.parallel_sin)
-    excluded[fb.pixel] = True
+    if fb.pixel is not None:
+        excluded[fb.pixel] = True
     signal = (conf >= settings.shadow_threshold) & ~excluded
     counting = photon_counting(tr, settings)     # expected values: no counting noise, a dark pixel is dark
     # darkness is judged against the lit pixels of the matched filter, before partial shadows join the dark
@@ -275,7 +280,17 @@ def preprocess(sensor, spot_transients, settings: PreprocessSettings | None = No
     if progress:
         from tqdm import tqdm
         it = tqdm(items, desc="preprocess", unit="spot")
-    spots = [process_spot(tr, sensor, s, settings, device, dirs) for s, tr in it]
+    spots, out_of_view = [], []
+    for i, (s, tr) in enumerate(it):   # out-of-view spots wait for the depth the in-view ones measure
+        if laser_ray_seen(sensor, s.laser_direction):
+            spots.append((i, process_spot(tr, sensor, s, settings, device, dirs)))
+        else:       # a lazily read dataset reads it again later: a 512^2 cube per spot is 400 MB
+            out_of_view.append((i, s, None if isinstance(items, _LazySpots) else tr))
+        del tr
+    if out_of_view:
+        read = items.dataset.read_transient if isinstance(items, _LazySpots) else None
+        spots += _out_of_view_spots(sensor, [m for _, m in spots], out_of_view, settings, device, dirs, read)
+    spots = [m for _, m in sorted(spots, key=lambda im: im[0])]
     if not spots:
         raise PreprocessError("no enabled spots to preprocess")
     m = Measurements(width=sensor.width, height=sensor.height, fov_rad=float(sensor.fov_rad),
@@ -288,6 +303,41 @@ def preprocess(sensor, spot_transients, settings: PreprocessSettings | None = No
         fused = fuse_visible_depth(m, device=device)
         m.visible_depth, m.visible_confidence = fused.depth, fused.confidence
     return m
+
+
+def _out_of_view_spots(sensor, spots, out_of_view, settings, device, dirs, read_transient=None) -> list:
+    """[(index, SpotMeasurement)] of the out-of-view (index, spot, transient) triples, each located by its
+    two-bounce arrival times at pixels whose depth the in-view `spots` measured
+    (first_bounce.fit_out_of_view_spot; the laser's pulse is an in-view spot's)."""
+    if not spots:
+        ids = ", ".join(str(s.id) for _, s, _ in out_of_view)
+        raise PreprocessError(f"every spot ({ids}) lies outside the sensor's view: at least one spot inside the view "
+                              f"is needed (its first bounce is measured; out-of-view spots are located from the "
+                              f"depth it gives)")
+    from .first_bounce import fit_pulse_sigma
+    from .visible_depth import fuse_visible_depth
+    fused = fuse_visible_depth(Measurements(
+        width=sensor.width, height=sensor.height, fov_rad=float(sensor.fov_rad), fov_axis=sensor.fov_axis,
+        camera_to_world=np.asarray(sensor.camera_to_world, np.float64),
+        laser_origin=np.asarray(sensor.laser_origin, np.float64), bin_width_m=float(sensor.bin_width_m),
+        shadow_threshold=float(settings.shadow_threshold), spots=spots), device=device)
+    c = np.asarray(sensor.camera_to_world, np.float64)[:3, 3]
+    points = c + dirs * np.asarray(fused.depth, np.float64)[..., None]
+    pulse = np.asarray(spots[0].pulse, np.float64)
+    h = len(pulse) // 2
+    # peak_bin 0: the first pass is ungated (l, hence the earliest two-bounce path, is still unknown)
+    ungated = FirstBounce(point=spots[0].first_bounce, distance=0.0, path_m=float(sensor.start_m), pixel=None,
+                          pulse=pulse, pulse_sigma_bins=fit_pulse_sigma(pulse[h - 2:h + 3]) if h >= 2 else 0.05,
+                          peak_bin=0)
+    out = []
+    for i, s, tr in out_of_view:
+        tr = tr if tr is not None else read_transient(s.id)
+        check_transient(tr, sensor, s.id)
+        mf = matched_filter_spot(tr, sensor, ungated, settings, device)
+        path = np.where(mf.confidence >= settings.shadow_threshold, mf.path, np.nan)
+        fb = fit_out_of_view_spot(sensor, s.laser_direction, s.id, path, points, ungated)
+        out.append((i, process_spot(tr, sensor, s, settings, device, dirs, fb=fb)))
+    return out
 
 
 class _LazySpots:

@@ -34,16 +34,23 @@ def simulate_cli(example: str, resolution: int, spots: int, options: dict, out) 
 
 
 def cached_dataset(ctx, example: str, resolution: int, spots: int, options: dict) -> Path:
-    """ctx.dataset: simulate (a subprocess of the real simulator) unless a valid cached copy exists."""
+    """ctx.dataset: simulate (a subprocess of the real simulator) unless a valid cached copy exists. The key
+    holds the scene's fingerprint: an edited example scene is simulated again, not served from the cache."""
     args = simulate_args(example, resolution, spots, options)
-    out = ctx.data_dir / f"{example}-{int(resolution)}-{_key(args)}"
-    problem = cache_problem(out, args)
+    key = [*args, f"scene={scene_fingerprint(example)}"]
+    out = ctx.data_dir / f"{example}-{int(resolution)}-{_key(key)}"
+    problem = cache_problem(out, key)
     if problem is not None:
         ctx.log(f"  simulating {' '.join(args)} -> {out.name} ({problem})")
         run = ctx.run_cli(simulate_cli(example, resolution, spots, options, out))
-        _stamp(out, args, {"simulate_wall_s": run.wall_s, "simulate_cpu_s": run.cpu_s,
+        _stamp(out, key, {"simulate_wall_s": run.wall_s, "simulate_cpu_s": run.cpu_s,
                            "simulate_peak_rss_mb": run.peak_rss_mb})
     return out
+
+
+def scene_fingerprint(example: str) -> str:
+    from torch_recon.contract.scenes import EXAMPLES
+    return EXAMPLES[example]().fingerprint() if example in EXAMPLES else "not-built-in"
 
 
 def integrated_dataset(ctx, src: Path, factor: int) -> Path:

@@ -135,6 +135,7 @@ def _fails(tmp_path, *args, blend=None, expect=""):
 
 @pytest.mark.parametrize("args,expect", [
     (["--spot-list", "0,-1,0.2"], "behind the sensor"),
+    (["--spot-list", "2,0.3,0"], "at least one must lie inside"),     # every spot outside the view
     (["--bins", 0], "setting bins"),
     (["--bins", 60], "exceed the bin range"),
     (["--frobnicate"], "unrecognized arguments"),

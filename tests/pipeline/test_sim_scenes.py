@@ -59,7 +59,9 @@ def test_curved_wall_faces_the_room():
 def test_every_example_and_unknown_name():
     for name in scenes.EXAMPLES:
         ex = scenes.example(name)
-        assert ex.parts and len(ex.spot_targets) == 24
+        extra = len(scenes.OUTSIDE_FOV_TARGETS) if name == "outside-fov" else 0   # its out-of-view spots
+        assert ex.parts and len(ex.spot_targets) == 24 + extra
+        assert len(ex.spot_enabled) == len(ex.spot_targets) and sum(ex.spot_enabled) == 16
         if ex.has_exact_mesh:
             assert len(ex.trimesh()[0].faces) > 0
         else:

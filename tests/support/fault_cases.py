@@ -227,8 +227,10 @@ CASES = [
     Case("sim-out-foreign-folder", S(*SIM_SMALL, "--out", W("photos")), says=("photos", "not empty"),
          prepare=write_file("photos/holiday.jpg", b"x")),
     Case("sim-out-is-file", S(*SIM_SMALL, "--out", W("file")), says=("file",), prepare=write_file("file", "x")),
-    Case("sim-spots-outside-view", S("--example", "cave-chair", "--width", "20", "--height", "10", "--spots", "4",
-                                     "--test-views", "0", "--out", W("sim")), says=("spot", "view")),
+    # spots outside the view are allowed (preprocessing fits them) as long as one lies inside
+    Case("sim-spots-outside-view", S("--example", "cave-chair", "--width", "20", "--height", "10", "--spot-list",
+                                     "2,0.3,0;1.2,0.15,-2", "--test-views", "0", "--out", W("sim")),
+         says=("every spot", "view", "at least one")),
     Case("sim-keeps-user-files", simulate_into_dataset_with_user_files, rc=0, after=after_sim_user_files),
     Case("sim-rerun-validates-reused", simulate_reuse_truncated, rc=0, after=after_reuse_truncated, slow=True),
     Case("sim-sigint-during-render", signal_simulate(SIGINT, lambda t: "spot 1/" in t), rc=130,

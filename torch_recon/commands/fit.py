@@ -22,8 +22,8 @@ def register(sub) -> None:
                                                                          "--no-progress)"}),
                          (("--no-mesh",), {"action": "store_true", "help": "skip the mesh export (volume.npz "
                                                                            "only)"}),
-                         (("--no-uv",), {"action": "store_true", "help": "skip the xatlas UV atlas (about a third "
-                                         "of a 128 px fit's wall time; only texture painting or baking in Blender "
+                         (("--no-uv",), {"action": "store_true", "help": "skip the xatlas UV atlas (about 4 CPU-s "
+                                         "of a 128 px fit; only texture painting or baking in Blender "
                                          "needs it)"})))
 
 

@@ -23,7 +23,7 @@ import torch
 from ..contract.errors import UnconstrainedMeasurementsError
 from .data import RayData
 from .fields import DensityGrid, GridBox
-from .sampler import marching_intervals, ray_box
+from .sampler import ray_box
 
 
 def scene_bbox(data: RayData, margin_m: float, quantile: float = 0.001):
@@ -44,25 +44,59 @@ def scene_bbox(data: RayData, margin_m: float, quantile: float = 0.001):
     return lo.astype(np.float32), hi.astype(np.float32)
 
 
-def _accumulate(box: GridBox, origins, dirs, near, far, step, counts, chunk_samples=1 << 22, core: float = 0.5):
+def _marching_cells(box: GridBox, origins, dirs, near, far, step, chunk_samples: int = 1 << 20,
+                    core: float = 0.5):
+    """The voxels of the fixed-step marching samples (interval midpoints, as `marching_intervals`) of each
+    segment, chunk by chunk: yields (rays, flat, keep): the segments' indices (R,), the flat x-major voxel
+    index of every sample (R, n; float, arbitrary where not counted) and whether it counts (inside the
+    box, non-empty interval, within `core` voxel of the voxel centre on every axis).
+
+    Segments are taken longest first so that a chunk pads its rays only to its own longest one, and
+    the axes are done one at a time on contiguous arrays: every sample and voxel is the same as with
+    one global padding and (R, n, 3) arrays, at about a third of the time."""
+    nx, ny, nz = box.shape
+    span = (far - near).clamp(min=0)
+    n_all = max(1, int(float(span.max()) / step) + 1)
+    order = torch.argsort(span, descending=True, stable=True)
+    wide = nx * ny * nz >= 1 << 24          # flat index exact in float32 below 2^24
+    k_all = torch.arange(n_all, device=near.device, dtype=near.dtype)
+    i = 0
+    while i < len(order):
+        # samples past floor(span / step) + 1 lie beyond the segment's end (t0 >= far): leave them out
+        n = min(n_all, int(float(span[order[i]]) / step) + 2)
+        rays = order[i:i + max(1, chunk_samples // n)]
+        i += len(rays)
+        nr, fr = near[rays, None], far[rays, None]
+        t0 = nr + k_all[:n] * step
+        t1 = torch.minimum(t0 + step, fr)
+        t0 = torch.minimum(t0, fr)
+        keep = t1 > t0
+        mid = 0.5 * (t0 + t1)
+        o, d = origins[rays], dirs[rays]
+        flat = None
+        for axis, (size, stride) in enumerate(((nx, 1), (ny, ny), (nz, nz))):
+            q = d[:, axis, None] * mid           # the sample's coordinate in voxel units
+            q = q.add_(o[:, axis, None]).sub_(box.bbox_min[axis]).div_(box.voxel)
+            f = torch.floor(q)
+            keep &= (f >= 0) & (f < size)
+            if core < 0.5:
+                keep &= (q - f - 0.5).abs() <= core
+            if wide:
+                f = f.double()
+            flat = f if flat is None else flat.mul_(stride).add_(f)
+        yield rays, flat, keep
+
+
+def _accumulate(box: GridBox, origins, dirs, near, far, step, counts, chunk_samples=1 << 20, core: float = 0.5):
     """Add 1 to `counts` (flat, x-major) for every marching sample of each segment inside the box whose
     position lies within `core` voxel of the voxel centre on every axis (0.5: anywhere in the voxel;
     smaller: a segment that only clips a corner of a partly filled voxel does not count)."""
-    nx, ny, nz = box.shape
     if origins.shape[0] == 0:
         return
-    n_per = max(1, int(float((far - near).clamp(min=0).max()) / step) + 1)
-    rays = max(1, chunk_samples // n_per)
-    for i in range(0, origins.shape[0], rays):
-        t0, t1 = marching_intervals(near[i:i + rays], far[i:i + rays], step)
-        pts = origins[i:i + rays, None] + dirs[i:i + rays, None] * (0.5 * (t0 + t1))[..., None]
-        idx, inside = box.cell_index(pts)
-        keep = inside & (t1 > t0)
-        if core < 0.5:
-            frac = (pts - box.bbox_min) / box.voxel - idx
-            keep &= ((frac - 0.5).abs() <= core).all(-1)
-        flat = (idx[..., 0] * ny + idx[..., 1]) * nz + idx[..., 2]
-        counts += torch.bincount(flat[keep], minlength=counts.numel())
+    n = counts.numel()
+    for _, flat, keep in _marching_cells(box, origins, dirs, near, far, step, chunk_samples, core):
+        # samples that do not count go to one extra bin (cheaper than selecting the others)
+        counts += torch.bincount(flat.masked_fill_(~keep, n).long().reshape(-1), minlength=n + 1)[:n]
 
 
 def _depth_normals(x: np.ndarray, valid: np.ndarray, c: np.ndarray, max_jump: np.ndarray, tol: float,
@@ -121,6 +155,15 @@ def visible_surface(data: RayData, box: GridBox):
     return x[valid], normals[valid]
 
 
+def _dilate_cube(x: torch.Tensor, r: int) -> torch.Tensor:
+    """Maximum over the (2 r + 1)^3 cube around each voxel of x (nx, ny, nz), one axis at a time (the
+    same as one 3-D max pool, a fifth of the time for r = 3)."""
+    x = x[None, None]
+    for kernel in ((2 * r + 1, 1, 1), (1, 2 * r + 1, 1), (1, 1, 2 * r + 1)):
+        x = torch.nn.functional.max_pool3d(x, kernel, 1, tuple(k // 2 for k in kernel))
+    return x[0, 0]
+
+
 def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: float = 2.0, k: int = 4,
                             surface=None):
     """Point-to-plane signed distance (m, + behind the surface) of voxel centres within `half_width_voxels`
@@ -141,7 +184,7 @@ def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: floa
     occ = torch.zeros(box.shape, dtype=torch.float32)
     occ[tuple(torch.from_numpy(idx[inside]).T)] = 1.0
     r = int(math.ceil(half_width_voxels)) + 1
-    occ = torch.nn.functional.max_pool3d(occ[None, None], 2 * r + 1, 1, r)[0, 0] > 0
+    occ = _dilate_cube(occ, r) > 0
     cand = torch.nonzero(occ, as_tuple=False).numpy()
     centres = lo + (cand + 0.5) * box.voxel
     tree = cKDTree(pts)
@@ -193,7 +236,7 @@ RESTORED = 4
 
 
 def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count, origins, dirs, near, far, step,
-                    restorable=(3,), chunk_samples: int = 1 << 22) -> int:
+                    restorable=(3,), chunk_samples: int = 1 << 20) -> int:
     """Make every shadowed segment blocked (in place on the flat `label`): a shadowed segment whose voxels
     were all carved free gets back the carved voxel along it with the most shadowed and fewest free
     crossings (shadow / (lit + 1)). Carving through whole voxels takes thin parts
@@ -201,19 +244,12 @@ def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count,
     casts cross it and put it back. Returns the number of voxels restored."""
     if origins.shape[0] == 0:
         return 0
-    nx, ny, nz = box.shape
-    n_per = max(1, int(float((far - near).clamp(min=0).max()) / step) + 1)
-    rays = max(1, chunk_samples // n_per)
     score = shadow_count.float() / (free_count.float() + 1.0)
     can = torch.zeros(8, dtype=torch.bool, device=label.device)
     can[list(restorable)] = True
     picked = []
-    for i in range(0, origins.shape[0], rays):
-        t0, t1 = marching_intervals(near[i:i + rays], far[i:i + rays], step)
-        pts = origins[i:i + rays, None] + dirs[i:i + rays, None] * (0.5 * (t0 + t1))[..., None]
-        idx, inside = box.cell_index(pts)
-        keep = inside & (t1 > t0)
-        flat = (idx[..., 0] * ny + idx[..., 1]) * nz + idx[..., 2]
+    for _, flat, keep in _marching_cells(box, origins, dirs, near, far, step, chunk_samples):
+        flat = flat.where(keep, 0.0).long()
         lab = label[flat]
         blocked = (keep & (lab != 2) & (lab != 3)).any(1)
         cand = keep & can[lab.long()] & ~blocked[:, None]
@@ -295,15 +331,34 @@ def fov_xy(width: int, height: int, fov_rad: float, fov_axis: str):
     return 2.0 * math.atan(math.tan(0.5 * fov_rad) * width / height), fov_rad
 
 
+#: spots whose secondary rays must cross a voxel outside the camera's view for it to count as measured
+MIN_SPOTS_BEYOND_VIEW = 2
+
+
 def in_view(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_axis: str) -> torch.Tensor:
-    """Voxels (nx, ny, nz) bool whose centre projects into the sensor image (in front of the sensor)."""
+    """Voxels (nx, ny, nz) bool some measurement reaches: the centre projects into the sensor image (camera
+    rays; and the secondary rays of spots inside the view, which stay in the convex view), or a secondary
+    segment x -> l (lit or shadowed) of a spot outside the view crosses the voxel (a laser scanning a wider
+    field than the camera sees: its light passes objects beside the sensor) from at least two spots: one
+    spot's shadow bounds a blocker's direction, not its depth (a one-view silhouette; inside the view the
+    camera rays bound it), so space only one spot reaches stays unobserved."""
     from ..contract.frames import project_points
 
-    pts = box.centres().reshape(-1, 3).cpu().numpy()
-    col, row, _ = project_points(camera_to_world, data.width, data.height, fov_rad, pts, fov_axis)
-    col, row = np.nan_to_num(col, nan=-1.0), np.nan_to_num(row, nan=-1.0)
-    ok = (col >= 0) & (col < data.width) & (row >= 0) & (row < data.height)
-    return torch.as_tensor(ok.reshape(box.shape), device=data.pixel_dirs.device)
+    def projects(pts, front_only=False):
+        col, row, depth = project_points(camera_to_world, data.width, data.height, fov_rad, pts, fov_axis)
+        col, row = np.nan_to_num(col, nan=-1.0), np.nan_to_num(row, nan=-1.0)
+        return (col >= 0) & (col < data.width) & (row >= 0) & (row < data.height) & ((depth > 0) | (not front_only))
+
+    ok = torch.as_tensor(projects(box.centres().reshape(-1, 3).cpu().numpy()), device=data.pixel_dirs.device)
+    outside = ~torch.as_tensor(projects(data.spot_points.cpu().numpy().reshape(-1, 3), True), device=ok.device)
+    spots_crossing = torch.zeros(ok.numel(), dtype=torch.long, device=ok.device)
+    for k in torch.nonzero(outside).reshape(-1).tolist():
+        crossed = torch.zeros(ok.numel(), dtype=torch.long, device=ok.device)
+        pairs = (data.lit | data.shadowed) & (data.pair_spot == k)
+        _accumulate(box, *_segments(data, pairs, 0.0), 0.5 * box.voxel, crossed)
+        spots_crossing += crossed > 0
+    ok |= spots_crossing >= MIN_SPOTS_BEYOND_VIEW
+    return ok.reshape(box.shape)
 
 
 def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0.0, view=None):

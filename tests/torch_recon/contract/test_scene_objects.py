@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from torch_recon.contract import scenes
@@ -50,3 +52,39 @@ def test_object_meshes_and_room_from_triangles():
     assert len(room.faces) + sum(len(m.faces) for m, _ in objs.values()) == len(tri[1])
     whole, _ = ex.trimesh()
     assert len(split_mesh_objects(whole)) == 2          # the same two objects, found without labels
+
+
+def test_outside_fov_column_is_out_of_view_and_shadows_visible_pixels():
+    """outside-fov: the column lies outside the sensor's view, the out-of-view spots' light passes it, and its
+    shadows land on pixels the sensor sees (analytic renders with and without the column)."""
+    from torch_recon.contract.analytic import render_two_bounce
+    from torch_recon.contract.frames import project_points
+    from torch_recon.contract.scenes import OUTSIDE_FOV_TARGETS, chair, outside_fov, room_walls
+    from torch_recon.contract.synthetic import concat, default_sensor
+
+    sc = outside_fov()
+    assert sum(sc.spot_enabled) == 16 and all(sc.spot_enabled[-len(OUTSIDE_FOV_TARGETS):])
+    column = next(p for p in sc.parts if p.name == "column")
+    sensor = default_sensor(24, 24, bins=391)
+    col, row, depth = project_points(sensor.camera_to_world, 24, 24, sensor.fov_rad, column.vertices)
+    assert not np.any((depth > 0) & (col >= 0) & (col < 24) & (row >= 0) & (row < 24))
+    lds = np.asarray(OUTSIDE_FOV_TARGETS) / np.linalg.norm(OUTSIDE_FOV_TARGETS, axis=1, keepdims=True)
+    with_column = render_two_bounce(sc.trimesh()[0], sensor, lds).sum(-1) > 0
+    without = render_two_bounce(concat(room_walls() + chair()), sensor, lds).sum(-1) > 0
+    shadowed_by_column = (without & ~with_column).sum(axis=(1, 2))
+    assert np.all(shadowed_by_column > 0.05 * 24 * 24), shadowed_by_column
+
+
+def test_scene_fingerprint_is_stable_and_sees_every_edit():
+    """The benchmark cache keys datasets by it: an edited scene must not reuse an old simulation."""
+    import dataclasses
+
+    from torch_recon.contract.scenes import EXAMPLES
+    base = EXAMPLES["outside-fov"]()
+    assert base.fingerprint() == EXAMPLES["outside-fov"]().fingerprint()
+    assert len({EXAMPLES[n]().fingerprint() for n in EXAMPLES}) == len(EXAMPLES)
+    moved = copy.deepcopy(base)
+    moved.parts[-1].vertices[0, 0] += 1e-6                       # one vertex of the column, a micrometre
+    spots = dataclasses.replace(base, spot_targets=[*base.spot_targets[:-1], (0.0, 3.9, -1.0)])
+    dark = dataclasses.replace(base, config_overrides={"ambient_per_bin": 0.01})
+    assert len({base.fingerprint(), moved.fingerprint(), spots.fingerprint(), dark.fingerprint()}) == 4

@@ -223,7 +223,10 @@ def read_transient_file(path: Path, manifest: Manifest, field: str) -> Transient
         raise DatasetError(f, field, "dense layout: every 'start' must be 0")
     if np.any(start + lay.window_bins > s.bins):
         raise DatasetError(f, field, f"window runs past sensor.bins={s.bins} at {int((start + lay.window_bins > s.bins).sum())} pixel(s)")
-    window = np.stack([chans[n] for n in names], axis=-1).astype(np.float32)
+    # filled channel by channel, each freed once copied: np.stack + astype held two more cube copies
+    window = np.empty((s.height, s.width, lay.window_bins), np.float32)
+    for j, n in enumerate(names):
+        window[..., j] = chans.pop(n)
     _check_array(window, f, field, nonneg=True)
     return Transient(start, window, s.bins)
 
