@@ -57,6 +57,8 @@ class FastConfig:
     explain_shadows: bool = True      # every shadowed segment keeps a blocker: the lit-carved voxel along it
                                       # with the highest shadowed / lit crossing ratio is put back (thin parts)
     explain_camera_free: bool = True   # ... also a voxel the sensor saw through (parts thinner than a pixel)
+    explain_score: str = "ratio"      # which carved voxel a shadowed segment gets back: 'ratio' (shadowed / lit
+                                      # crossings) or 'spots' (distinct spots' shadows / distinct lit spots + 1)
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
     surface_margin_voxels: float = 1.0  # camera free space stops this far before the visible surface
     occupancy_threshold: float = 0.01  # cells whose neighbourhood has sigma * voxel below this are skipped
@@ -154,6 +156,8 @@ class FitConfig:
         if self.platonerf.reinit_dead not in ("both", "coarse", "off"):
             raise SettingsError("platonerf.reinit_dead",
                                 f"expected 'both', 'coarse' or 'off', got {self.platonerf.reinit_dead!r}")
+        if self.fast.explain_score not in ("ratio", "spots"):
+            raise SettingsError("fast.explain_score", f"expected 'ratio' or 'spots', got {self.fast.explain_score!r}")
         check_device_name(self.device)
         for key in ("fast.lr", "fast.adam_eps", "fast.step_voxels", "fast.rays_per_batch", "platonerf.lr", "platonerf.rays_per_batch",
                     "loss.path_scale_m"):

@@ -236,15 +236,17 @@ RESTORED = 4
 
 
 def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count, origins, dirs, near, far, step,
-                    restorable=(3,), chunk_samples: int = 1 << 20) -> int:
+                    restorable=(3,), chunk_samples: int = 1 << 20, score=None) -> int:
     """Make every shadowed segment blocked (in place on the flat `label`): a shadowed segment whose voxels
     were all carved free gets back the carved voxel along it with the most shadowed and fewest free
     crossings (shadow / (lit + 1)). Carving through whole voxels takes thin parts
     (a chair leg about one voxel wide) with it wherever a lit ray grazes their voxel; the shadows the part
-    casts cross it and put it back. Returns the number of voxels restored."""
+    casts cross it and put it back. `score` (flat, float): another ranking of the candidates (higher wins)
+    in place of that ratio. Returns the number of voxels restored."""
     if origins.shape[0] == 0:
         return 0
-    score = shadow_count.float() / (free_count.float() + 1.0)
+    if score is None:
+        score = shadow_count.float() / (free_count.float() + 1.0)
     can = torch.zeros(8, dtype=torch.bool, device=label.device)
     can[list(restorable)] = True
     picked = []
@@ -262,6 +264,15 @@ def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count,
     return int(picked.numel())
 
 
+def spot_crossings(data: RayData, box: GridBox, mask, off, step, core=0.5):
+    """Per voxel (flat), the number of distinct spots with at least one secondary segment of `mask` crossing it."""
+    n = int(np.prod(box.shape))
+    spots = torch.zeros(n, dtype=torch.long, device=data.pixel_dirs.device)
+    for k in torch.unique(data.pair_spot[mask]).tolist():
+        spots += _segment_counts(data, box, mask & (data.pair_spot == k), off, step, core) > 0
+    return spots
+
+
 def _pixel_stride(data: RayData, voxel: float, spacing_voxels: float = 1.0) -> int:
     """Pixel stride keeping neighbouring carving rays within `spacing_voxels` of each other out to the
     far surfaces (the 95th percentile depth): finer images carve with a subset of their pixels."""
@@ -277,7 +288,7 @@ def _pixel_stride(data: RayData, voxel: float, spacing_voxels: float = 1.0) -> i
 def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.0, carve_min_lit: int = 1,
                   secondary_offset_m: float = 0.0, step_voxels: float = 0.5, carve_core: float = 0.5,
                   count_shadow: bool = False, carve_spacing_voxels: float = 1.0, explain_shadow_rays: bool = False,
-                  explain_camera_free: bool = False):
+                  explain_camera_free: bool = False, explain_score: str = "ratio"):
     """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
     blocker of a shadowed segment (with `explain_shadow_rays`); and the count
     of shadowed secondary segments through each voxel (with `count_shadow`)."""
@@ -318,10 +329,16 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     label[surface > 0] = 1
     if consistent:
         seg = _segments(data, data.shadowed & on_sub[data.pair_pixel], off)
+        score = None
+        if explain_score == "spots":    # distinct spots whose shadows cross a voxel, over distinct lit spots
+            sh = data.shadowed & on_sub[data.pair_pixel]
+            score = (spot_crossings(data, box, sh, off, step).float()
+                     / (spot_crossings(data, box, data.lit & on_sub[data.pair_pixel], off, step, carve_core) + 1.0))
         if explain_camera_free:     # a part thinner than a pixel: the pixel ray saw past it
-            explain_shadows(box, label, lit_count + cam_free, shadow_count, *seg, step, restorable=(2, 3))
+            explain_shadows(box, label, lit_count + cam_free, shadow_count, *seg, step, restorable=(2, 3),
+                            score=score)
         else:
-            explain_shadows(box, label, lit_count, shadow_count, *seg, step)
+            explain_shadows(box, label, lit_count, shadow_count, *seg, step, score=score)
     return label.reshape(box.shape), shadow_count.reshape(box.shape)
 
 
@@ -378,7 +395,8 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
 
     label, _ = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m,
                              cfg.step_voxels, cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
-                             explain_shadow_rays=cfg.explain_shadows, explain_camera_free=cfg.explain_camera_free)
+                             explain_shadow_rays=cfg.explain_shadows, explain_camera_free=cfg.explain_camera_free,
+                             explain_score=cfg.explain_score)
     free = (label == 2) | (label == 3)
     dev = data.pixel_dirs.device
     occupied = ~free if view is None else ~free & view
