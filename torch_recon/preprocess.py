@@ -42,8 +42,8 @@ import numpy as np
 from .contract.dataset.transient import Transient
 from .contract.frames import camera_ray_directions
 from .contract.errors import PreprocessError
-from .first_bounce import (FirstBounce, SubBinLUT, find_first_bounce, fit_out_of_view_spot, laser_ray_seen,
-                           subbin_offset)
+from .first_bounce import (FirstBounce, SubBinLUT, find_first_bounce, fit_out_of_view_spot, fit_pulse_sigma,
+                           laser_ray_seen, subbin_offset)
 from .measurements import Measurements, SpotMeasurement
 from .shadow_decision import FilterOutput, partial_shadow_mask, photon_counting, unsupported_shadow_mask
 
@@ -314,8 +314,7 @@ def _out_of_view_spots(sensor, spots, out_of_view, settings, device, dirs, read_
         raise PreprocessError(f"every spot ({ids}) lies outside the sensor's view: at least one spot inside the view "
                               f"is needed (its first bounce is measured; out-of-view spots are located from the "
                               f"depth it gives)")
-    from .first_bounce import fit_pulse_sigma
-    from .visible_depth import fuse_visible_depth
+    from .visible_depth import fuse_visible_depth     # only scenes with out-of-view spots need it
     fused = fuse_visible_depth(Measurements(
         width=sensor.width, height=sensor.height, fov_rad=float(sensor.fov_rad), fov_axis=sensor.fov_axis,
         camera_to_world=np.asarray(sensor.camera_to_world, np.float64),
