@@ -368,13 +368,10 @@ def in_view(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_ax
 
     ok = torch.as_tensor(projects(box.centres().reshape(-1, 3).cpu().numpy()), device=data.pixel_dirs.device)
     outside = ~torch.as_tensor(projects(data.spot_points.cpu().numpy().reshape(-1, 3), True), device=ok.device)
-    spots_crossing = torch.zeros(ok.numel(), dtype=torch.long, device=ok.device)
-    for k in torch.nonzero(outside).reshape(-1).tolist():
-        crossed = torch.zeros(ok.numel(), dtype=torch.long, device=ok.device)
-        pairs = (data.lit | data.shadowed) & (data.pair_spot == k)
-        _accumulate(box, *_segments(data, pairs, 0.0), 0.5 * box.voxel, crossed)
-        spots_crossing += crossed > 0
-    ok |= spots_crossing >= MIN_SPOTS_BEYOND_VIEW
+    beyond = torch.nonzero(outside).reshape(-1)
+    if len(beyond):
+        pairs = (data.lit | data.shadowed) & torch.isin(data.pair_spot, beyond)
+        ok |= spot_crossings(data, box, pairs, 0.0, 0.5 * box.voxel) >= MIN_SPOTS_BEYOND_VIEW
     return ok.reshape(box.shape)
 
 
