@@ -84,6 +84,9 @@ class FastConfig:
                                       # and floor ramps (|g| ~ 5e-5) stay while the chair's (4e-4 - 1e-3) train.
                                       # Cave-chair 128, 100 steps: 1e-8 (torch default) depth L1 0.075 m, 1e-4
                                       # 0.058, 1e-3 0.055 (hidden R@2cm 0.76 -> 0.83), 1e-2 0.061 (F@2cm 0.78)
+    # --- thin parts in the start field (helper thin, session 7; recon/cone_carving.py) ---
+    footprint_voxels: float = 0.0     # > 0: a line-carved voxel that shadowed rays cross stays occupied unless the
+                                      # camera's or a spot's rays within this many voxels of its centre show it free
     # --- start field outside the sensor's view and mesh (recon/init.py, recon/unobserved.py) ---
     complete_unobserved: bool = True  # outside the view the planes bounding the observation continue (walls,
                                       # floor, ceiling next to the sensor); False: nothing is put there
@@ -158,6 +161,9 @@ class FitConfig:
                                 f"expected 'both', 'coarse' or 'off', got {self.platonerf.reinit_dead!r}")
         if self.fast.explain_score not in ("ratio", "spots"):
             raise SettingsError("fast.explain_score", f"expected 'ratio' or 'spots', got {self.fast.explain_score!r}")
+        if not 0.0 <= self.fast.footprint_voxels <= 4.0:
+            raise SettingsError("fast.footprint_voxels", f"expected a value in [0, 4] (voxels; 0: off), "
+                                                         f"got {self.fast.footprint_voxels}")
         check_device_name(self.device)
         for key in ("fast.lr", "fast.adam_eps", "fast.step_voxels", "fast.rays_per_batch", "platonerf.lr", "platonerf.rays_per_batch",
                     "loss.path_scale_m"):

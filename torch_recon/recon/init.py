@@ -233,6 +233,8 @@ def _segments(data: RayData, mask, off):
 
 #: evidence label of a carved voxel put back because a shadowed segment needs a blocker there
 RESTORED = 4
+#: evidence label of a line-carved voxel that the rays' footprints do not show free (cone_carving.py)
+KEPT = 5
 
 
 def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count, origins, dirs, near, far, step,
@@ -288,9 +290,11 @@ def _pixel_stride(data: RayData, voxel: float, spacing_voxels: float = 1.0) -> i
 def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.0, carve_min_lit: int = 1,
                   secondary_offset_m: float = 0.0, step_voxels: float = 0.5, carve_core: float = 0.5,
                   count_shadow: bool = False, carve_spacing_voxels: float = 1.0, explain_shadow_rays: bool = False,
-                  explain_camera_free: bool = False, explain_score: str = "ratio"):
+                  explain_camera_free: bool = False, explain_score: str = "ratio", footprint_voxels: float = 0.0):
     """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
-    blocker of a shadowed segment (with `explain_shadow_rays`); and the count
+    blocker of a shadowed segment (with `explain_shadow_rays`), 5 kept by the footprint rule (with
+    `footprint_voxels` > 0: a line-carved voxel that shadowed rays cross stays only if the rays within
+    that many voxels of its centre show it free, cone_carving.py); and the count
     of shadowed secondary segments through each voxel (with `count_shadow`)."""
     dev = data.pixel_dirs.device
     n = int(np.prod(box.shape))
@@ -327,6 +331,12 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     label[lit_count >= max(1, carve_min_lit)] = 3
     label[cam_free > 0] = 2
     label[surface > 0] = 1
+    if footprint_voxels > 0 and (count_shadow or consistent):
+        from .cone_carving import cone_free
+        cand = torch.nonzero(((label == 2) | (label == 3)) & (shadow_count > 0), as_tuple=False).squeeze(1)
+        pts = box.centres().reshape(-1, 3)[cand]
+        keep = ~cone_free(data, pts, box.voxel, surface_margin_voxels * box.voxel, off, footprint_voxels)
+        label[cand[keep]] = KEPT
     if consistent:
         seg = _segments(data, data.shadowed & on_sub[data.pair_pixel], off)
         score = None
@@ -393,7 +403,7 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     label, _ = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m,
                              cfg.step_voxels, cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
                              explain_shadow_rays=cfg.explain_shadows, explain_camera_free=cfg.explain_camera_free,
-                             explain_score=cfg.explain_score)
+                             explain_score=cfg.explain_score, footprint_voxels=cfg.footprint_voxels)
     free = (label == 2) | (label == 3)
     dev = data.pixel_dirs.device
     occupied = ~free if view is None else ~free & view
@@ -414,6 +424,6 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
         mesh_free = free | (unobserved & (shell < 0) & (shell > -cfg.plane_free_band_voxels * box.voxel))
     if cfg.surface_slope > 0:
         sd = surface_signed_distance(data, box, cfg.surface_half_width_voxels, surface=surface).to(dev)
-        near = torch.isfinite(sd) & ((label != 3) | (sd <= 0.5 * box.voxel)) & (label != RESTORED)
+        near = torch.isfinite(sd) & ((label != 3) | (sd <= 0.5 * box.voxel)) & (label != RESTORED) & (label != KEPT)
         raw = torch.where(near, ramp(sd), raw)
     return DensityGrid.from_xyz(box, raw.float(), cfg.density_scale), mesh_free

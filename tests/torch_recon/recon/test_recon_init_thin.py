@@ -10,14 +10,15 @@ torch = pytest.importorskip("torch")
 
 from torch_recon.recon.data import RayData  # noqa: E402
 from torch_recon.recon.fields import GridBox  # noqa: E402
-from torch_recon.recon.init import RESTORED, evidence_grid  # noqa: E402
+from torch_recon.recon.init import KEPT, RESTORED, evidence_grid  # noqa: E402
 
 POST_XY, POST_R, POST_TOP = np.array([0.55, 0.45]), 0.02, 0.6
 
 
-def _post_scene(n_pix=24):
-    """Sensor 2 m above a 1 x 1 m floor looking down; a vertical post (radius 2 cm, 60 cm tall) the depth
-    image does not see; 6 spots on the above the floor round it; a pair is shadowed when its segment hits the post."""
+def _post_scene(n_pix=24, seen_top=False, post_r=POST_R):
+    """Sensor 2 m above a 1 x 1 m floor looking down; a vertical post (radius `post_r`, 60 cm tall) the depth
+    image does not see (`seen_top`: the pixels whose ray meets the post's top see it there); 6 spots above the
+    floor round it; a pair is shadowed when its segment hits the post."""
     c = np.array([0.5, 0.5, 2.0])
     u = (np.arange(n_pix) + 0.5) / n_pix
     floor = np.stack(np.meshgrid(u, u, indexing="ij"), -1).reshape(-1, 2)
@@ -25,6 +26,11 @@ def _post_scene(n_pix=24):
     dirs = x - c
     depth = np.linalg.norm(dirs, axis=1)
     dirs /= depth[:, None]
+    if seen_top:
+        t_top = (POST_TOP - c[2]) / dirs[:, 2]
+        top = c + dirs * t_top[:, None]
+        on_top = np.linalg.norm(top[:, :2] - POST_XY, axis=1) < post_r
+        x[on_top], depth[on_top] = top[on_top], t_top[on_top]
     ang = np.linspace(0, 2 * np.pi, 6, endpoint=False)
     spots = np.stack([0.5 + 0.4 * np.cos(ang), 0.5 + 0.4 * np.sin(ang), np.zeros(6)], 1)
     t = np.linspace(0, 1, 400)
@@ -34,7 +40,7 @@ def _post_scene(n_pix=24):
     shd = []
     for k, l in enumerate(spots):
         seg = x[:, None] + (l - x)[:, None] * t[None, :, None]
-        shd.append(((np.linalg.norm(seg[..., :2] - POST_XY, axis=-1) < POST_R) & (seg[..., 2] <= POST_TOP)).any(1))
+        shd.append(((np.linalg.norm(seg[..., :2] - POST_XY, axis=-1) < post_r) & (seg[..., 2] < POST_TOP - 1e-6)).any(1))
     shd = np.concatenate(shd)
     f = lambda a, dt=torch.float32: torch.as_tensor(np.asarray(a), dtype=dt)  # noqa: E731
     return RayData(sensor_origin=f(c), laser_origin=f(c), pixel_dirs=f(dirs), spot_points=f(spots),
@@ -61,3 +67,36 @@ def test_a_post_thinner_than_a_pixel_survives_the_start(score="ratio"):
     # and nothing far from the post is put back
     far = (near_post > 3 * box.voxel) & (z > 0.1)
     assert int(((label == RESTORED) & far).sum()) == 0
+
+
+def _column_and_far(box):
+    centres = box.centres()
+    near_post = torch.linalg.vector_norm(centres[..., :2] - torch.tensor(POST_XY, dtype=torch.float32), dim=-1)
+    z = centres[..., 2]
+    column = (near_post < box.voxel) & (z > 0.15) & (z < POST_TOP - 0.1)
+    return column, (near_post > 2 * box.voxel) & (z > 0.1)
+
+
+def _heights_kept(label, column):
+    blocked = (label != 2) & (label != 3)
+    heights = sorted(set(torch.nonzero(column)[:, 2].tolist()))
+    return sum(bool((blocked & column)[..., k].any()) for k in heights), len(heights)
+
+
+def test_ray_footprints_keep_a_post_lines_carve_without_new_hull():
+    """A 2 cm post seen from above (its top in the depth image) and grazed inside its 5 cm voxels by the
+    camera rays and lit secondary rays passing beside it: carving with lines takes the whole column (no
+    shadow pass here), carving with footprints keeps it (the post's shadowed rays and its top's depth lie in
+    every column voxel's footprint) and keeps nothing away from the post that lines carved."""
+    data = _post_scene(n_pix=48, seen_top=True)
+    box = GridBox([-0.05, -0.05, -0.05], [1.05, 1.05, 1.05], 22)
+    column, far = _column_and_far(box)
+    lines, _ = evidence_grid(data, box, carve_spacing_voxels=0.5, count_shadow=True)
+    cones, _ = evidence_grid(data, box, carve_spacing_voxels=0.5, count_shadow=True, footprint_voxels=0.5)
+    kept_lines, n = _heights_kept(lines, column)
+    kept_cones, _ = _heights_kept(cones, column)
+    assert n >= 6 and kept_lines <= 1 and kept_cones >= n - 1, (kept_lines, kept_cones, n)
+    free = lambda lab: (lab == 2) | (lab == 3)  # noqa: E731
+    below_spots = box.centres()[..., 2] < 0.75      # next to a spot every one of its rays converges: kept
+    assert int((free(lines) & ~free(cones) & far & below_spots).sum()) == 0
+    assert int(((cones == KEPT) & far & below_spots).sum()) == 0    # the post's voxels only, no hull
