@@ -79,7 +79,8 @@ class DirectionMap:
 
 def cone_free(data, pts: torch.Tensor, voxel: float, camera_margin_m: float, secondary_offset_m: float,
               radius_voxels: float = 0.5) -> torch.Tensor:
-    """Points (M, 3) free from the sensor or from at least one spot under the footprint rule (module doc)."""
+    """Per point (M, 3): from how many viewpoints (the sensor, each spot) it is free under the footprint rule
+    (module doc)."""
     radius = radius_voxels * voxel
     c = data.sensor_origin
     d = data.visible_depth
@@ -87,7 +88,7 @@ def cone_free(data, pts: torch.Tensor, voxel: float, camera_margin_m: float, sec
     w = data.width
     pix_rad = float(torch.arccos((data.pixel_dirs[0] * data.pixel_dirs[1]).sum().clamp(-1, 1))) if w > 1 else 1e-3
     cam = DirectionMap(c, data.pixel_dirs[ok], d[ok], torch.zeros_like(d[ok]), pix_rad)
-    free = cam.free_at(pts, radius, camera_margin_m)
+    free = cam.free_at(pts, radius, camera_margin_m).long()
     pairs = torch.nonzero(torch.isfinite(d[data.pair_pixel]) & (data.lit | data.shadowed), as_tuple=False).squeeze(1)
     px, sp = data.pair_pixel[pairs], data.pair_spot[pairs]
     x = c + data.pixel_dirs[px] * d[px, None]
@@ -103,5 +104,5 @@ def cone_free(data, pts: torch.Tensor, voxel: float, camera_margin_m: float, sec
         spacing = float(torch.median(pix_rad * d[px[m][good]] / length)) if len(length) else pix_rad
         inf = torch.full_like(length, float("inf"))
         spot = DirectionMap(l, u, torch.where(lit, length, inf), torch.where(lit, 0.0, length), spacing)
-        free |= spot.free_at(pts, radius, secondary_offset_m)
+        free += spot.free_at(pts, radius, secondary_offset_m)
     return free

@@ -87,6 +87,10 @@ class FastConfig:
     # --- thin parts in the start field (helper thin, session 7; recon/cone_carving.py) ---
     footprint_voxels: float = 0.0     # > 0: a line-carved voxel that shadowed rays cross stays occupied unless the
                                       # camera's or a spot's rays within this many voxels of its centre show it free
+    footprint_views: int = 1          # ... free from at least this many viewpoints (sensor, spots): a thin part's
+                                      # shadow a spot's pixels miss leaves it free from that spot alone
+    trim_hull_voxels: int = 0         # > 0: hull voxels no shadowed ray crosses, reachable from measured free space
+                                      # through such voxels within this many voxels, start empty (recon/hull_trim.py)
     # --- start field outside the sensor's view and mesh (recon/init.py, recon/unobserved.py) ---
     complete_unobserved: bool = True  # outside the view the planes bounding the observation continue (walls,
                                       # floor, ceiling next to the sensor); False: nothing is put there
@@ -164,6 +168,10 @@ class FitConfig:
         if not 0.0 <= self.fast.footprint_voxels <= 4.0:
             raise SettingsError("fast.footprint_voxels", f"expected a value in [0, 4] (voxels; 0: off), "
                                                          f"got {self.fast.footprint_voxels}")
+        if self.fast.trim_hull_voxels < 0:
+            raise SettingsError("fast.trim_hull_voxels", f"expected an integer >= 0 (0: off), got {self.fast.trim_hull_voxels}")
+        if self.fast.footprint_views < 1:
+            raise SettingsError("fast.footprint_views", f"expected an integer >= 1, got {self.fast.footprint_views}")
         check_device_name(self.device)
         for key in ("fast.lr", "fast.adam_eps", "fast.step_voxels", "fast.rays_per_batch", "platonerf.lr", "platonerf.rays_per_batch",
                     "loss.path_scale_m"):

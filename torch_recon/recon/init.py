@@ -24,7 +24,7 @@ from ..contract.errors import UnconstrainedMeasurementsError
 from .data import RayData
 from .fields import DensityGrid, GridBox
 from .sampler import ray_box
-from .visible_surface_init import surface_offset, surface_signed_distance, visible_surface
+from .visible_surface_init import _dilate_cube, surface_offset, surface_signed_distance, visible_surface
 
 
 def scene_bbox(data: RayData, margin_m: float, quantile: float = 0.001):
@@ -178,7 +178,8 @@ def _pixel_stride(data: RayData, voxel: float, spacing_voxels: float = 1.0) -> i
 def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.0, carve_min_lit: int = 1,
                   secondary_offset_m: float = 0.0, step_voxels: float = 0.5, carve_core: float = 0.5,
                   count_shadow: bool = False, carve_spacing_voxels: float = 1.0, explain_shadow_rays: bool = False,
-                  explain_camera_free: bool = False, explain_score: str = "ratio", footprint_voxels: float = 0.0):
+                  explain_camera_free: bool = False, explain_score: str = "ratio", footprint_voxels: float = 0.0,
+                  footprint_views: int = 1):
     """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
     blocker of a shadowed segment (with `explain_shadow_rays`), 5 kept by the footprint rule (with
     `footprint_voxels` > 0: a line-carved voxel that shadowed rays cross stays only if the rays within
@@ -223,7 +224,7 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
         from .cone_carving import cone_free
         cand = torch.nonzero(((label == 2) | (label == 3)) & (shadow_count > 0), as_tuple=False).squeeze(1)
         pts = box.centres().reshape(-1, 3)[cand]
-        keep = ~cone_free(data, pts, box.voxel, surface_margin_voxels * box.voxel, off, footprint_voxels)
+        keep = cone_free(data, pts, box.voxel, surface_margin_voxels * box.voxel, off, footprint_voxels) < footprint_views
         label[cand[keep]] = KEPT
     if consistent:
         seg = _segments(data, data.shadowed & on_sub[data.pair_pixel], off)
@@ -288,18 +289,26 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     """
     from .unobserved import bounding_planes, shell_signed_distance
 
-    label, _ = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m,
-                             cfg.step_voxels, cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
-                             explain_shadow_rays=cfg.explain_shadows, explain_camera_free=cfg.explain_camera_free,
-                             explain_score=cfg.explain_score, footprint_voxels=cfg.footprint_voxels)
+    label, shadow_count = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m,
+                                        cfg.step_voxels, cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
+                                        count_shadow=cfg.trim_hull_voxels > 0, explain_shadow_rays=cfg.explain_shadows,
+                                        explain_camera_free=cfg.explain_camera_free, explain_score=cfg.explain_score,
+                                        footprint_voxels=cfg.footprint_voxels, footprint_views=cfg.footprint_views)
     free = (label == 2) | (label == 3)
     dev = data.pixel_dirs.device
+    surface = visible_surface(data, box)
+    sd = (surface_signed_distance(data, box, cfg.surface_half_width_voxels, surface=surface).to(dev)
+          if cfg.surface_slope > 0 else None)
+    if cfg.trim_hull_voxels > 0:
+        from .hull_trim import unneeded_hull
+        band = torch.isfinite(sd) if sd is not None else _dilate_cube((label == 1).float(), 2) > 0
+        hull = (label == 0) if view is None else (label == 0) & view
+        free = free | unneeded_hull(free, hull, shadow_count, band, cfg.trim_hull_voxels)
     occupied = ~free if view is None else ~free & view
     raw = torch.where(occupied, torch.tensor(cfg.raw_occupied, device=dev), torch.tensor(cfg.raw_free, device=dev))
     b = surface_offset(cfg.density_scale, box.voxel, max(cfg.surface_slope, 1e-3))
     ramp = lambda sd: ((cfg.surface_slope * sd / box.voxel + b) if cfg.surface_slope > 0  # noqa: E731
                        else torch.where(sd > 0, cfg.raw_occupied, cfg.raw_free)).clamp(cfg.raw_free, cfg.raw_occupied)
-    surface = visible_surface(data, box)
     mesh_free = free
     if cfg.complete_unobserved and view is not None:
         planes = bounding_planes(*surface, data.sensor_origin.cpu().numpy(), data.spot_points.cpu().numpy(),
@@ -310,8 +319,7 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
         # completed empty space counts as free for the mesh only next to a completed plane: the shadow
         # hull's boundary at the edge of the view stays unreported
         mesh_free = free | (unobserved & (shell < 0) & (shell > -cfg.plane_free_band_voxels * box.voxel))
-    if cfg.surface_slope > 0:
-        sd = surface_signed_distance(data, box, cfg.surface_half_width_voxels, surface=surface).to(dev)
-        near = torch.isfinite(sd) & ((label != 3) | (sd <= 0.5 * box.voxel)) & (label != RESTORED) & (label != KEPT)
+    if sd is not None:
+        near = torch.isfinite(sd) & ((label != 3) | (sd <= 0.5 * box.voxel)) & (label != RESTORED)
         raw = torch.where(near, ramp(sd), raw)
     return DensityGrid.from_xyz(box, raw.float(), cfg.density_scale), mesh_free

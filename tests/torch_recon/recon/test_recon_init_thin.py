@@ -10,7 +10,9 @@ torch = pytest.importorskip("torch")
 
 from torch_recon.recon.data import RayData  # noqa: E402
 from torch_recon.recon.fields import GridBox  # noqa: E402
+from torch_recon.recon.hull_trim import unneeded_hull  # noqa: E402
 from torch_recon.recon.init import KEPT, RESTORED, evidence_grid  # noqa: E402
+from torch_recon.recon.visible_surface_init import _dilate_cube  # noqa: E402
 
 POST_XY, POST_R, POST_TOP = np.array([0.55, 0.45]), 0.02, 0.6
 
@@ -100,3 +102,22 @@ def test_ray_footprints_keep_a_post_lines_carve_without_new_hull():
     below_spots = box.centres()[..., 2] < 0.75      # next to a spot every one of its rays converges: kept
     assert int((free(lines) & ~free(cones) & far & below_spots).sum()) == 0
     assert int(((cones == KEPT) & far & below_spots).sum()) == 0    # the post's voxels only, no hull
+
+
+def test_hull_no_shadow_needs_is_trimmed_the_post_stays():
+    """The corners of the box beside the sensor's view cone, which no ray of any kind crosses, are shadow hull
+    (a lump) that nothing measured needs: trimmed from the free side. The post, which every shadow it casts
+    crosses, stays, and so does the floor's visible-surface band."""
+    data = _post_scene()
+    box = GridBox([-0.05, -0.05, -0.05], [1.05, 1.05, 1.05], 22)
+    label, shadow = evidence_grid(data, box, carve_spacing_voxels=0.5, count_shadow=True, explain_shadow_rays=True,
+                                  explain_camera_free=True)
+    free = (label == 2) | (label == 3)
+    band = _dilate_cube((label == 1).float(), 1) > 0
+    trimmed = unneeded_hull(free, label == 0, shadow, band, 8)
+    column, far = _column_and_far(box)
+    lump = (label == 0) & far & (box.centres()[..., 2] > 0.2)
+    assert int(lump.sum()) > 100 and int((trimmed & lump).sum()) > 0.9 * int(lump.sum())
+    kept, n = _heights_kept(torch.where(trimmed, torch.tensor(3, dtype=label.dtype), label), column)
+    assert kept >= n - 1, (kept, n)
+    assert not bool((trimmed & band).any()) and not bool((trimmed & (shadow > 0)).any())
