@@ -299,22 +299,31 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     surface = visible_surface(data, box)
     sd = (surface_signed_distance(data, box, cfg.surface_half_width_voxels, surface=surface).to(dev)
           if cfg.surface_slope > 0 else None)
+    shell = None
+    if (cfg.complete_unobserved and view is not None) or cfg.trim_hull_voxels > 0:
+        planes = bounding_planes(*surface, data.sensor_origin.cpu().numpy(), data.spot_points.cpu().numpy(),
+                                 cfg.plane_tolerance_voxels * box.voxel, cfg.plane_min_support)
+        shell = shell_signed_distance(box.centres().double(), planes).float().to(dev)
+    trimmed = None
     if cfg.trim_hull_voxels > 0:
         from .hull_trim import unneeded_hull
         band = torch.isfinite(sd) if sd is not None else _dilate_cube((label == 1).float(), 2) > 0
-        hull = (label == 0) if view is None else (label == 0) & view
-        free = free | unneeded_hull(free, hull, shadow_count, band, cfg.trim_hull_voxels)
+        hull = (label == 0) & (shell < -0.5 * box.voxel)     # never through a wall, floor or ceiling plane
+        hull = hull if view is None else hull & view
+        trimmed = unneeded_hull(free, hull, shadow_count, band, cfg.trim_hull_voxels)
+        free = free | trimmed
     occupied = ~free if view is None else ~free & view
     raw = torch.where(occupied, torch.tensor(cfg.raw_occupied, device=dev), torch.tensor(cfg.raw_free, device=dev))
     b = surface_offset(cfg.density_scale, box.voxel, max(cfg.surface_slope, 1e-3))
     ramp = lambda sd: ((cfg.surface_slope * sd / box.voxel + b) if cfg.surface_slope > 0  # noqa: E731
                        else torch.where(sd > 0, cfg.raw_occupied, cfg.raw_free)).clamp(cfg.raw_free, cfg.raw_occupied)
     mesh_free = free
+    if trimmed is not None:
+        # where a trimmed lump met a wall the sensor did not see, the wall's plane places its surface
+        wall = (_dilate_cube(trimmed.float(), 2) > 0) & ~free & (shell.abs() < 2 * box.voxel)
+        raw = torch.where(wall, ramp(shell), raw)
     if cfg.complete_unobserved and view is not None:
-        planes = bounding_planes(*surface, data.sensor_origin.cpu().numpy(), data.spot_points.cpu().numpy(),
-                                 cfg.plane_tolerance_voxels * box.voxel, cfg.plane_min_support)
         unobserved = ~free & ~view
-        shell = shell_signed_distance(box.centres().double(), planes).float().to(dev)
         raw = torch.where(unobserved, ramp(shell), raw)
         # completed empty space counts as free for the mesh only next to a completed plane: the shadow
         # hull's boundary at the edge of the view stays unreported
