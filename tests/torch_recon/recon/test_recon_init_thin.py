@@ -121,3 +121,12 @@ def test_hull_no_shadow_needs_is_trimmed_the_post_stays():
     kept, n = _heights_kept(torch.where(trimmed, torch.tensor(3, dtype=label.dtype), label), column)
     assert kept >= n - 1, (kept, n)
     assert not bool((trimmed & band).any()) and not bool((trimmed & (shadow > 0)).any())
+
+
+@pytest.mark.parametrize("assignment", ["fast.trim_hull_voxels=-1", "fast.footprint_voxels=5", "fast.footprint_views=0"])
+def test_start_field_settings_refuse_bad_values(assignment):
+    from torch_recon.contract.errors import SettingsError
+    from torch_recon.recon.config import FitConfig, override
+
+    with pytest.raises(SettingsError, match=assignment.split("=")[0].replace(".", r"\.")):
+        override(FitConfig(), [assignment])
