@@ -82,10 +82,8 @@ def render_ground_truth(writer, mesh, sensor, *, train_depth: bool = True, test_
             writer, ranges(sensor.camera_to_world, sensor.width, sensor.height, sensor.fov_rad, sensor.fov_axis))
     if test_cameras is not None and len(test_cameras):
         tw, th = test_size
-        from tqdm import tqdm
-        depths = np.stack([ranges(c2w, tw, th, test_fov_rad, "x")
-                           for c2w in tqdm(test_cameras, desc="ground truth views", unit="view", leave=False,
-                                           disable=len(test_cameras) < 8)])
+        # no progress bar: the 139 views take ~0.3 s; `import tqdm` alone is 0.04-0.08 CPU-s of a 128 x 128 run
+        depths = np.stack([ranges(c2w, tw, th, test_fov_rad, "x") for c2w in test_cameras])
         gt.test_views = write_test_views(writer, test_cameras, depths, test_fov_rad)
     if export_mesh:
         gt.mesh_file = write_mesh(writer, mesh)
