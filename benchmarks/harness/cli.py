@@ -42,7 +42,7 @@ def run_suite(suite, quick: bool, overrides=(), results_dir: Path | None = None,
     doc = report.results_document(suite, settings, rows, quick, machine, command, REPO_ROOT)
     doc["suite"]["total_wall_s"] = round(total.wall_s, 2)
     if merge and target.is_file():
-        doc = report.merge_results(json.loads(target.read_text()), doc)
+        doc = report.merge_results(json.loads(target.read_text()), doc, suite.row_id)
         rows = doc["rows"]
         log(f"merged into {target}: {len(rows)} rows from {len(doc['runs'])} runs")
     path = report.write_json(target, doc)
@@ -125,7 +125,7 @@ def main(argv=None) -> int:
             suite.settings(args.quick, [*args.set, *method_override(suite, args.methods)])
             target = (QUICK_DIR if args.quick else RESULTS_DIR) / f"{suite.name}.json"
             if args.merge and target.is_file():
-                report.rows_by_id(json.loads(target.read_text())["rows"], str(target.relative_to(REPO_ROOT)))
+                report.rows_by_id(json.loads(target.read_text())["rows"], str(target.relative_to(REPO_ROOT)), suite.row_id)
         except (SettingsError, report.RowError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2

@@ -270,18 +270,19 @@ def run_record(doc: dict) -> dict:
             "machine": doc.get("machine", {}), "settings": doc.get("settings"), "total_wall_s": s.get("total_wall_s")}
 
 
-def merge_results(old: dict, new: dict) -> dict:
-    """`new` (one run's document) with the rows of `old` it did not re-measure, rows keyed by (method, scene):
+def merge_results(old: dict, new: dict, row_id=ROW_ID) -> dict:
+    """`new` (one run's document) with the rows of `old` it did not re-measure, rows keyed by `row_id`
+    (default method and scene; a suite may add fields, Suite.row_id):
     a new row replaces the old one in place, new keys follow. Each row's `run` (1-based) points into the
     document's `runs`, the provenance of the run that measured it; runs no row comes from are dropped.
     Top-level machine/suite/settings are the new run's. A key twice in one document raises RowError."""
     old_runs = old.get("runs") or [run_record(old)]
     new_run = run_record(new)
-    fresh = rows_by_id(new["rows"], "the new run")
-    rows_by_id(old["rows"], "the existing results")
+    fresh = rows_by_id(new["rows"], "the new run", row_id)
+    rows_by_id(old["rows"], "the existing results", row_id)
     pairs = []
     for r in old["rows"]:
-        k = tuple(r.get(f) for f in ROW_ID)
+        k = tuple(r.get(f) for f in row_id)
         pairs.append((fresh.pop(k), new_run) if k in fresh else (r, old_runs[int(r.get("run") or 1) - 1]))
     pairs += [(r, new_run) for r in fresh.values()]
     runs, rows = [], []
@@ -294,14 +295,15 @@ def merge_results(old: dict, new: dict) -> dict:
     return {**new, "runs": runs, "rows": rows}
 
 
-def rows_by_id(rows, what: str) -> dict:
-    """{(method, scene): row}; RowError naming the first key seen twice (such rows cannot be merged)."""
+def rows_by_id(rows, what: str, row_id=ROW_ID) -> dict:
+    """{key: row}, key = the row's `row_id` fields; RowError naming the first key seen twice (such rows
+    cannot be merged)."""
     out = {}
     for r in rows:
-        k = tuple(r.get(f) for f in ROW_ID)
+        k = tuple(r.get(f) for f in row_id)
         if k in out:
-            raise RowError(f"cannot merge: {what} has two rows for method {k[0]!r}, scene {k[1]!r} "
-                           f"(rows are merged by {' and '.join(ROW_ID)})")
+            named = ", ".join(f"{f} {v!r}" for f, v in zip(row_id, k))
+            raise RowError(f"cannot merge: {what} has two rows for {named} (rows are merged by {', '.join(row_id)})")
         out[k] = r
     return out
 

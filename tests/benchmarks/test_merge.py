@@ -75,3 +75,11 @@ def test_cli_refuses_methods_on_a_suite_without_them_and_an_unmergeable_file(cap
     (tmp_path / "objects.json").write_text(json.dumps({"rows": [{"method": "m", "scene": "s"}] * 2}))
     assert main(["run", "objects", "--methods", "bflidar", "--merge"]) == 2
     assert "objects.json has two rows" in capsys.readouterr().err
+
+
+def test_a_suite_may_key_rows_by_more_fields():
+    def doc(cmd, *rows):
+        return {"suite": {"command": cmd}, "rows": [{"method": "m", "scene": "s", "resolution": r, "v": v}
+                                                     for r, v in rows]}
+    merged = report.merge_results(doc("a", (128, 1), (512, 2)), doc("b", (512, 3)), ("method", "scene", "resolution"))
+    assert [(r["resolution"], r["v"], r["run"]) for r in merged["rows"]] == [(128, 1, 1), (512, 3, 2)]
