@@ -70,7 +70,9 @@ def machine_line(info: dict) -> str:
     parts.append(f"GPU {info['gpu']}" if info.get("gpu") else "no GPU")
     parts.append(f"torch {info.get('torch')}, numpy {info.get('numpy')}")
     load = info.get("loadavg_1min")
-    parts.append(f"load average {load:.2f}" if isinstance(load, (int, float)) else "load average unknown")
+    end = info.get("loadavg_1min_end")
+    parts.append((f"load average {load:.2f}" + (f" (end {end:.2f})" if isinstance(end, (int, float)) else ""))
+                 if isinstance(load, (int, float)) else "load average unknown")
     return ", ".join(parts)
 
 
