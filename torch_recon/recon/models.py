@@ -14,10 +14,11 @@ import torch.nn.functional as F
 from .config import FitConfig
 from .data import RayData
 from .fields import DensityGrid, GridBox
-from .init import in_view, initial_grid, scene_bbox, surface_offset
+from .init import in_view, initial_grid, scene_bbox
 from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total_loss
 from .renderer import render_field, render_pruned, secondary_rays
 from .sampler import importance_positions, merged_intervals, ray_box, uniform_intervals
+from .visible_surface_init import surface_offset
 
 
 class ReconstructionModel:

@@ -8,7 +8,8 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from torch_recon.recon.fields import GridBox  # noqa: E402
-from torch_recon.recon.init import RESTORED, _depth_normals, explain_shadows  # noqa: E402
+from torch_recon.recon.init import RESTORED, explain_shadows  # noqa: E402
+from torch_recon.recon.visible_surface_init import _depth_normals  # noqa: E402
 
 
 def _segment(a, b):

@@ -12,7 +12,8 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from torch_recon.recon.fields import GridBox  # noqa: E402
-from torch_recon.recon.init import _accumulate, _dilate_cube, _marching_cells  # noqa: E402
+from torch_recon.recon.init import _accumulate, _marching_cells  # noqa: E402
+from torch_recon.recon.visible_surface_init import _dilate_cube  # noqa: E402
 from torch_recon.recon.sampler import marching_intervals  # noqa: E402
 
 

@@ -36,7 +36,8 @@ from ..frames import (blender_to_paper_c2w, blender_to_platonerf_train_points, p
 from ..units import bin_widths_consistent, deg_to_rad, rad_to_deg
 from .platonerf_truth import export_ground_truth, import_ground_truth
 from .schema import DatasetError, Manifest, NoiseSpec, Provenance, PulseSpec, SensorSpec, Spot, TimeGate, \
-    TransientLayout, _Checker
+    TransientLayout
+from .field_reader import FieldReader
 from .store import Dataset, DatasetWriter, _check_array, read_json, transient_relpath
 from .transient import Transient
 
@@ -322,7 +323,7 @@ def import_platonerf(src_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
     t -= pad
     sample_type = "float16" if items[0][1].dtype == np.float16 and scale == 1.0 else "float32"
     if extras:
-        ck = _Checker(f)
+        ck = FieldReader(f)
         sensor = SensorSpec.from_dict(extras["sensor"], ck, "platolidar.sensor")
         layout = TransientLayout.from_dict(extras["layout"], ck, "platolidar.layout")
         noise = NoiseSpec.from_dict(extras["noise"], ck, "platolidar.noise")

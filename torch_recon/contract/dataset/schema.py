@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import PlatolidarError
 from ..units import MAX_SENSOR_SIDE, bin_widths_consistent, ps_to_m, transient_size_problem
+from .field_reader import DatasetError, FieldReader  # noqa: F401  (DatasetError: re-exported)
 
 SCHEMA_NAME = "platolidar.dataset"
 SCHEMA_VERSION = "1.1"
@@ -24,104 +24,13 @@ KINDS = ("transients", "measurements")
 MANIFEST_NAME = "dataset.json"
 
 
-class DatasetError(PlatolidarError, ValueError):
-    """A dataset that cannot be used: names the file, the field and what was expected."""
-
-    def __init__(self, file: str, field_path: str, message: str):
-        self.file, self.field, self.detail = str(file), field_path, message
-        where = f"{self.file}: field '{field_path}'" if field_path else self.file
-        super().__init__(f"{where}: {message}")
-
-
-class _Checker:
-    """Reads typed values out of a JSON dict, raising DatasetError with the field path."""
-
-    def __init__(self, file: str):
-        self.file = file
-
-    def fail(self, path: str, msg: str):
-        raise DatasetError(self.file, path, msg)
-
-    def get(self, d: dict, key: str, path: str, default=..., ):
-        if not isinstance(d, dict):
-            self.fail(path.rsplit(".", 1)[0], f"expected an object, got {type(d).__name__}")
-        if key not in d:
-            if default is ...:
-                self.fail(path, "missing")
-            return default
-        return d[key]
-
-    def number(self, d, key, path, default=..., positive=False, nonneg=False):
-        v = self.get(d, key, path, default)
-        if v is None and default is None:
-            return None
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            self.fail(path, f"expected a finite number, got {v!r}")
-        if positive and v <= 0:
-            self.fail(path, f"expected a positive number, got {v!r}")
-        if nonneg and v < 0:
-            self.fail(path, f"expected a number >= 0, got {v!r}")
-        return float(v)
-
-    def integer(self, d, key, path, default=..., minimum=None):
-        v = self.get(d, key, path, default)
-        if isinstance(v, bool) or not isinstance(v, int):
-            self.fail(path, f"expected an integer, got {v!r}")
-        if minimum is not None and v < minimum:
-            self.fail(path, f"expected an integer >= {minimum}, got {v!r}")
-        return int(v)
-
-    def boolean(self, d, key, path, default=...):
-        v = self.get(d, key, path, default)
-        if not isinstance(v, bool):
-            self.fail(path, f"expected true or false, got {v!r}")
-        return v
-
-    def string(self, d, key, path, default=..., choices=None):
-        v = self.get(d, key, path, default)
-        if v is None and default is None:
-            return None
-        if not isinstance(v, str):
-            self.fail(path, f"expected a string, got {v!r}")
-        if choices is not None and v not in choices:
-            self.fail(path, f"expected one of {list(choices)}, got {v!r}")
-        return v
-
-    def vector(self, d, key, path, n=3, default=...):
-        v = self.get(d, key, path, default)
-        if v is None and default is None:
-            return None
-        a = np.asarray(v, dtype=object)
-        if a.shape != (n,) or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in a):
-            self.fail(path, f"expected a list of {n} numbers, got {v!r}")
-        a = np.asarray(v, dtype=np.float64)
-        if not np.all(np.isfinite(a)):
-            self.fail(path, f"expected finite numbers, got {v!r}")
-        return [float(x) for x in a]
-
-    def matrix4(self, d, key, path, default=...):
-        v = self.get(d, key, path, default)
-        if v is None and default is None:
-            return None
-        try:
-            a = np.asarray(v, dtype=np.float64)
-        except (TypeError, ValueError):
-            self.fail(path, "expected a 4x4 matrix of numbers")
-        if a.shape != (4, 4) or not np.all(np.isfinite(a)):
-            self.fail(path, f"expected a finite 4x4 matrix, got shape {a.shape}")
-        rot = a[:3, :3]
-        if not np.allclose(rot.T @ rot, np.eye(3), atol=1e-4) or not np.allclose(a[3], [0, 0, 0, 1], atol=1e-6):
-            self.fail(path, "expected a rigid camera-to-world transform (orthonormal rotation, last row 0 0 0 1)")
-        return a.tolist()
-
-
 @dataclass
 class PulseSpec:
     shape: str = "gaussian"  # 'gaussian' or 'box' (single bin)
     fwhm_ps: float = 128.0
 
     @classmethod
-    def from_dict(cls, d, ck: _Checker, path: str):
+    def from_dict(cls, d, ck: FieldReader, path: str):
         return cls(shape=ck.string(d, "shape", f"{path}.shape", choices=("gaussian", "box")),
                    fwhm_ps=ck.number(d, "fwhm_ps", f"{path}.fwhm_ps", positive=True))
 
@@ -134,7 +43,7 @@ class TimeGate:
     window_bins: int = 0
 
     @classmethod
-    def from_dict(cls, d, ck: _Checker, path: str):
+    def from_dict(cls, d, ck: FieldReader, path: str):
         en = ck.boolean(d, "enabled", f"{path}.enabled")
         wb = ck.integer(d, "window_bins", f"{path}.window_bins", minimum=0)
         if en and wb < 1:
@@ -171,7 +80,7 @@ class SensorSpec:
         return self.start_m + (np.arange(self.bins) + 0.5) * self.bin_width_m
 
     @classmethod
-    def from_dict(cls, d, ck: _Checker, path: str):
+    def from_dict(cls, d, ck: FieldReader, path: str):
         s = cls(
             width=ck.integer(d, "width", f"{path}.width", minimum=1),
             height=ck.integer(d, "height", f"{path}.height", minimum=1),
@@ -212,7 +121,7 @@ class NoiseSpec:
     seed: int = 0
 
     @classmethod
-    def from_dict(cls, d, ck: _Checker, path: str):
+    def from_dict(cls, d, ck: FieldReader, path: str):
         n = cls(
             photon_counts=ck.boolean(d, "photon_counts", f"{path}.photon_counts"),
             photons_per_pixel=ck.number(d, "photons_per_pixel", f"{path}.photons_per_pixel", nonneg=True),
@@ -238,7 +147,7 @@ class Spot:
     measurement_file: str | None = None   # 1.1, measurements kind: EXR of per-pixel path_m / lit / valid
 
     @classmethod
-    def from_dict(cls, d, ck: _Checker, path: str, kind: str = "transients"):
+    def from_dict(cls, d, ck: FieldReader, path: str, kind: str = "transients"):
         s = cls(
             id=ck.integer(d, "id", f"{path}.id", minimum=0),
             laser_direction=ck.vector(d, "laser_direction", f"{path}.laser_direction"),
@@ -272,7 +181,7 @@ class TransientLayout:
     sample_type: str = "float32"  # 'float32' or 'float16'
 
     @classmethod
-    def from_dict(cls, d, ck: _Checker, path: str):
+    def from_dict(cls, d, ck: FieldReader, path: str):
         return cls(kind=ck.string(d, "kind", f"{path}.kind", choices=("dense", "windowed")),
                    window_bins=ck.integer(d, "window_bins", f"{path}.window_bins", minimum=1),
                    sample_type=ck.string(d, "sample_type", f"{path}.sample_type", choices=("float32", "float16")))
@@ -292,7 +201,7 @@ class GroundTruthViews:
     n_invalid: int = 0           # requested views dropped because the camera was not in free space
 
     @classmethod
-    def from_dict(cls, d, ck: _Checker, path: str):
+    def from_dict(cls, d, ck: FieldReader, path: str):
         cams = ck.get(d, "camera_to_world", f"{path}.camera_to_world")
         if not isinstance(cams, list) or not cams:
             ck.fail(f"{path}.camera_to_world", "expected a non-empty list of 4x4 matrices")
@@ -317,7 +226,7 @@ class GroundTruthObject:
     parts: list = field(default_factory=list)   # Blender object names that make it
 
     @classmethod
-    def from_dict(cls, d, ck: _Checker, path: str):
+    def from_dict(cls, d, ck: FieldReader, path: str):
         parts = ck.get(d, "parts", f"{path}.parts", default=[])
         if not isinstance(parts, list) or not all(isinstance(p, str) for p in parts):
             ck.fail(f"{path}.parts", f"expected a list of object names, got {parts!r}")
@@ -335,7 +244,7 @@ class GroundTruth:
     objects: list = field(default_factory=list)   # list[GroundTruthObject]: the objects that matter
 
     @classmethod
-    def from_dict(cls, d, ck: _Checker, path: str):
+    def from_dict(cls, d, ck: FieldReader, path: str):
         tv = ck.get(d, "test_views", f"{path}.test_views", default=None)
         objs = ck.get(d, "objects", f"{path}.objects", default=[])
         if not isinstance(objs, list):
@@ -363,7 +272,7 @@ class Provenance:
     extra: dict = field(default_factory=dict)
 
     @classmethod
-    def from_dict(cls, d, ck: _Checker, path: str):
+    def from_dict(cls, d, ck: FieldReader, path: str):
         extra = ck.get(d, "extra", f"{path}.extra", default={})
         if not isinstance(extra, dict):
             ck.fail(f"{path}.extra", "expected an object")
@@ -421,7 +330,7 @@ class Manifest:
 
     @classmethod
     def from_dict(cls, d: dict, file: str = MANIFEST_NAME) -> "Manifest":
-        ck = _Checker(file)
+        ck = FieldReader(file)
         if not isinstance(d, dict):
             ck.fail("", "expected a JSON object at the top level")
         if ck.string(d, "schema", "schema") != SCHEMA_NAME:

@@ -1,0 +1,126 @@
+"""The visible surface of the fast mode's start field: points and normals from the closed-form visible
+depth, the point-to-plane signed distance of voxel centres to it, and the raw value at the surface of a
+density ramp. Near visible surfaces the start field is a ramp in that signed distance (`init.py`)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from .data import RayData
+from .fields import GridBox
+
+
+def _depth_normals(x: np.ndarray, valid: np.ndarray, c: np.ndarray, max_jump: np.ndarray, tol: float,
+                   span: int = 2):
+    """Unit normals (H, W, 3) of the visible surface, facing the sensor, from the point image x (H, W, 3).
+
+    Four candidate tangent pairs per pixel (forward or backward differences over `span` pixels along
+    rows and columns, steps longer than `max_jump` per pixel left out); the candidate whose plane holds
+    the most points of the (2 span + 1)^2 neighbourhood within `tol` wins. Taking the side nearer in
+    range instead tilted the normal wherever the nearer neighbour lay on another surface (a seat seen
+    at a grazing angle next to the chair's back: its planes disagreed by centimetres). Where no
+    candidate exists (a part about a pixel wide) the normal faces the sensor. NaN where not valid.
+    """
+    h, w = valid.shape
+    xp = np.pad(np.where(valid[..., None], x, np.nan), ((span, span), (span, span), (0, 0)),
+                constant_values=np.nan)
+    jump_ok = lambda t: np.nan_to_num(np.linalg.norm(t, axis=-1), nan=np.inf) <= span * max_jump  # noqa: E731
+
+    def shifted(di, dj):
+        return xp[span + di:span + di + h, span + dj:span + dj + w]
+
+    tangents_u = [shifted(0, span) - x, x - shifted(0, -span)]
+    tangents_v = [shifted(span, 0) - x, x - shifted(-span, 0)]
+    neigh = [shifted(di, dj) - x for di in range(-span, span + 1) for dj in range(-span, span + 1) if di or dj]
+    view = c - x
+    view /= np.maximum(np.linalg.norm(view, axis=-1, keepdims=True), 1e-12)
+    best_n = view.copy()
+    best_support = np.full((h, w), -1.0)
+    for tu in tangents_u:
+        for tv in tangents_v:
+            n = np.cross(np.nan_to_num(tu), np.nan_to_num(tv))
+            nn = np.linalg.norm(n, axis=-1, keepdims=True)
+            ok = jump_ok(tu) & jump_ok(tv) & (nn[..., 0] > 1e-12)
+            n = n / np.maximum(nn, 1e-12)
+            support = sum(np.nan_to_num(np.abs((q * n).sum(-1)), nan=np.inf) <= tol for q in neigh)
+            better = ok & (support > best_support)
+            best_n = np.where(better[..., None], n, best_n)
+            best_support = np.where(better, support, best_support)
+    best_n *= np.sign((best_n * view).sum(-1, keepdims=True) + 1e-12)
+    best_n[~valid] = np.nan
+    return best_n
+
+
+def visible_surface(data: RayData, box: GridBox):
+    """Visible surface points (N, 3) float64 and their unit normals facing the sensor (from the depth image)."""
+    h, w = data.height, data.width
+    c = data.sensor_origin.cpu().numpy().astype(np.float64)
+    d = data.visible_depth.cpu().numpy().reshape(h, w).astype(np.float64)
+    dirs = data.pixel_dirs.cpu().numpy().reshape(h, w, 3).astype(np.float64)
+    valid = np.isfinite(d)
+    x = c + dirs * np.where(valid, d, 0.0)[..., None]
+    pix_angle = float(np.arccos(np.clip((dirs[0, 0] * dirs[0, 1]).sum(), -1, 1))) if w > 1 else 1e-3
+    # steps up to 8 pixel footprints (a surface at 7 degrees grazing); the plane support test picks the side
+    max_jump = 8.0 * pix_angle * np.where(valid, d, 0.0) + box.voxel
+    normals = _depth_normals(x, valid, c, max_jump, tol=0.25 * box.voxel)
+    return x[valid], normals[valid]
+
+
+def _dilate_cube(x: torch.Tensor, r: int) -> torch.Tensor:
+    """Maximum over the (2 r + 1)^3 cube around each voxel of x (nx, ny, nz), one axis at a time (the
+    same as one 3-D max pool, a fifth of the time for r = 3)."""
+    x = x[None, None]
+    for kernel in ((2 * r + 1, 1, 1), (1, 2 * r + 1, 1), (1, 1, 2 * r + 1)):
+        x = torch.nn.functional.max_pool3d(x, kernel, 1, tuple(k // 2 for k in kernel))
+    return x[0, 0]
+
+
+def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: float = 2.0, k: int = 4,
+                            surface=None):
+    """Point-to-plane signed distance (m, + behind the surface) of voxel centres within `half_width_voxels`
+    of the visible surface (NaN elsewhere): the mean over the k nearest measured points of their tangent
+    planes, leaving out planes that disagree with the nearest by more than a voxel (another surface).
+    Planar walls give an exactly linear field, so the iso-surface is flat (no grid-aligned steps).
+    surface: (points, normals) from `visible_surface` when already computed."""
+    from scipy.spatial import cKDTree
+
+    pts, nrm = visible_surface(data, box) if surface is None else surface
+    sd = np.full(box.shape, np.nan, np.float32)
+    if len(pts) == 0:
+        return torch.from_numpy(sd)
+    lo = box.bbox_min.cpu().numpy().astype(np.float64)
+    # candidate voxels: the cells holding a surface point, dilated by the half width
+    idx = np.floor((pts - lo) / box.voxel).astype(np.int64)
+    inside = np.all((idx >= 0) & (idx < np.array(box.shape)), 1)
+    occ = torch.zeros(box.shape, dtype=torch.float32)
+    occ[tuple(torch.from_numpy(idx[inside]).T)] = 1.0
+    r = int(math.ceil(half_width_voxels)) + 1
+    occ = _dilate_cube(occ, r) > 0
+    cand = torch.nonzero(occ, as_tuple=False).numpy()
+    centres = lo + (cand + 0.5) * box.voxel
+    tree = cKDTree(pts)
+    k = min(k, len(pts))
+    dist, j = tree.query(centres, k=k, distance_upper_bound=(half_width_voxels + 1.0) * box.voxel)
+    dist, j = dist.reshape(len(cand), k), j.reshape(len(cand), k)
+    found = np.isfinite(dist)
+    jj = np.where(found, j, 0)
+    plane = ((pts[jj] - centres[:, None]) * nrm[jj]).sum(-1)          # + behind the surface
+    agree = found & (np.abs(plane - plane[:, :1]) <= box.voxel)
+    wgt = agree * np.exp(-(np.where(found, dist, 0.0) / box.voxel) ** 2)
+    val = (wgt * plane).sum(1) / np.maximum(wgt.sum(1), 1e-12)
+    keep = found[:, 0] & (np.abs(val) <= half_width_voxels * box.voxel)
+    sd[tuple(cand[keep].T)] = val[keep]
+    return torch.from_numpy(sd)
+
+
+def surface_offset(density_scale: float, voxel: float, slope: float) -> float:
+    """Raw value at the surface so that a ramp raw = slope * s / voxel + b (s: signed distance along
+    the ray) has half its transmittance left at s = 0: integral of density_scale * softplus = ln 2."""
+    x = np.linspace(-40.0, 40.0, 80001)
+    sp = np.logaddexp(0.0, x)
+    cum = np.cumsum(sp) * (x[1] - x[0])                     # integral of softplus from -inf to x
+    need = math.log(2.0) * slope / (density_scale * voxel)
+    return float(np.interp(need, cum, x))
