@@ -107,8 +107,12 @@ COLUMNS = (("scene", "scene"), ("method", "method"), ("wall_s", "time s", ".0f")
 def readme(results: dict) -> str:
     """The README table: the issue's target columns, time, training steps reached and load beside each row,
     the run that measured it (the harness adds the runs' provenance)."""
+    def order(r):       # by scene, then method, whichever run measured it
+        scenes, methods = list(OBJECT_SCENES), list(Settings.methods)
+        return (scenes.index(r["scene"]) if r["scene"] in scenes else len(scenes),
+                methods.index(r["method"]) if r["method"] in methods else len(methods))
     rows = [{**r, "note": "; ".join(filter(None, [runners.failure(r), r.get("note")])) or None}
-            for r in results["rows"]]
+            for r in sorted(results["rows"], key=order)]
     return markdown_table(rows, COLUMNS)
 
 
