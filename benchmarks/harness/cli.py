@@ -29,7 +29,7 @@ def run_suite(suite, quick: bool, overrides=(), results_dir: Path | None = None,
     sets = list(overrides)
     settings = suite.settings(quick, [*sets, *method_override(suite, methods)])
     target = Path(results_dir) / f"{suite.name}.json"
-    machine = report.machine_info()
+    machine, commit = report.machine_info(), report.git_commit(REPO_ROOT)     # the code as the run starts
     log(f"== {suite.name} ({'quick' if quick else 'full'}): {suite.description.splitlines()[0]}")
     log(f"machine: {report.machine_line(machine)}")
     ctx = Context(suite.name, quick, **({"data_dir": data_dir} if data_dir else {}), log=log)
@@ -39,7 +39,7 @@ def run_suite(suite, quick: bool, overrides=(), results_dir: Path | None = None,
     command = " ".join(["python -m benchmarks run", suite.name, *(["--quick"] if quick else []),
                         *([f"--methods {','.join(methods)}"] if methods else []), *(["--merge"] if merge else []),
                         *(f"--set {o}" for o in sets)])
-    doc = report.results_document(suite, settings, rows, quick, machine, command, REPO_ROOT)
+    doc = report.results_document(suite, settings, rows, quick, machine, command, REPO_ROOT, commit)
     doc["suite"]["total_wall_s"] = round(total.wall_s, 2)
     if merge and target.is_file():
         doc = report.merge_results(json.loads(target.read_text()), doc, suite.row_id)

@@ -126,9 +126,11 @@ def git_commit(root: Path) -> str | None:
         return None
 
 
-def results_document(suite, settings, rows, quick: bool, machine: dict, command: str, root: Path) -> dict:
+def results_document(suite, settings, rows, quick: bool, machine: dict, command: str, root: Path,
+                     commit: str | None = None) -> dict:
+    """`commit`: the code the run started from (default: HEAD now; a long run should pass its start's)."""
     measured = {"date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-                "commit": git_commit(root), "by": "python -m benchmarks"}
+                "commit": commit or git_commit(root), "by": "python -m benchmarks"}
     return {"machine": machine,
             "suite": {"name": suite.name, "description": suite.description, "quick": quick, "command": command,
                       "measured": measured},
