@@ -17,7 +17,7 @@ import os
 from dataclasses import dataclass
 
 from benchmarks.harness import Suite, runners
-from benchmarks.harness.report import fmt, markdown_table
+from benchmarks.harness.report import fmt, markdown_table, plot_rows
 from torch_recon.contract.scenes import OBJECT_SCENES
 
 TIMES = ("wall_s", "cpu_s", "peak_rss_mb")
@@ -116,5 +116,10 @@ def readme(results: dict) -> str:
     return markdown_table(rows, COLUMNS)
 
 
+def plot(rows, settings, path):
+    """Object F-score at 2 cm against the method's wall time, one colour per method (no surface: not drawn)."""
+    plot_rows(rows, path, title="objects: object F@2cm against wall time", y="obj_f2cm")
+
+
 SUITE = Suite("objects", "object-level accuracy on the labelled example scenes (issue 11 targets)",
-              quick=Settings(methods=("fast",)), full=Settings(), run=run, readme=readme)
+              quick=Settings(methods=("fast",)), full=Settings(), run=run, readme=readme, plot=plot)

@@ -83,3 +83,16 @@ def test_a_suite_may_key_rows_by_more_fields():
                                                      for r, v in rows]}
     merged = report.merge_results(doc("a", (128, 1), (512, 2)), doc("b", (512, 3)), ("method", "scene", "resolution"))
     assert [(r["resolution"], r["v"], r["run"]) for r in merged["rows"]] == [(128, 1, 1), (512, 3, 2)]
+
+
+def test_objects_table_orders_by_scene_and_method_and_says_no_surface():
+    from benchmarks.suites.objects import readme
+    base = {"wall_s": 1.0, "cpu_s": 1.0, "peak_rss_mb": 1.0}
+    rows = [{"method": "platonerf", "scene": "curved-wall", **base, "steps": 3, "load_1min": 9.5,
+             "no_surface": "fit wrote no mesh", "note": "short budget", "run": 2},
+            {"method": "fast", "scene": "curved-wall", **base, "obj_f2cm": 0.8, "run": 1},
+            {"method": "bflidar", "scene": "cave-chair", **base, "obj_f2cm": 0.3, "run": 2}]
+    lines = readme({"rows": rows}).splitlines()[2:]
+    assert [line.split(" | ")[:2] for line in lines] == [["| cave-chair", "bflidar"], ["| curved-wall", "fast"],
+                                                         ["| curved-wall", "platonerf"]]
+    assert "| 3 | 9.5 |" in lines[2] and "no surface; short budget" in lines[2] and lines[2].endswith("| 2 |")
