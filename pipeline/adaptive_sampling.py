@@ -28,8 +28,8 @@ import threading
 import warnings
 
 import numpy as np
-from scipy.ndimage import binary_dilation
 
+from pipeline.neighbourhood import binary_dilation
 from pipeline.spot_shading import SceneRays, ShadingSamples
 from torch_recon.contract.frames import focal_length_px
 

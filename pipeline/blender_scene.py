@@ -71,7 +71,9 @@ def labelled_objects() -> dict | None:
 
 def build_example(ex: ExampleScene, config: SimulationConfig | None = None):
     """Replace the open file by an empty scene holding `ex`; store its settings in the .blend."""
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    # the factory startup scene, emptied; read_factory_settings would also reset the preferences, re-enabling
+    # every add-on (Blender's extensions add-on imports urllib/http: 0.1 s of a 128 x 128 run's start-up)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     scene.name = ex.name
     label_of = {p: label for label, parts in ex.objects.items() for p in parts}

@@ -260,4 +260,9 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    status = main()
+    # leave without Blender's own shutdown (add-ons unregistered, every datablock freed: 0.3 s of a 128 x 128
+    # run): the dataset is committed, the render's temporary folder removed and every thread joined by now
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(status)

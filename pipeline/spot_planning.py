@@ -11,10 +11,10 @@ import sys
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import maximum_filter, minimum_filter
 
 from pipeline import blender_scene as bs
 from pipeline import transient_binning
+from pipeline.neighbourhood import maximum_filter3, minimum_filter3
 from pipeline.cycles_render import EMITTER_OFFSET_M
 from torch_recon.contract import spots
 from torch_recon.contract.dataset import NoiseSpec, PulseSpec, SensorSpec, TimeGate
@@ -178,7 +178,7 @@ def window_bins_bound(plans, sensor, geometry, footprint_m: float, neighbourhood
         hi = np.where(facing, paths, -np.inf).max(axis=0)
         lo = np.where(facing, paths, np.inf).min(axis=0)
         if neighbourhood:           # edge pixels are sampled again: their samples may see what a neighbour sees
-            hi, lo = maximum_filter(hi, size=3), minimum_filter(lo, size=3)
+            hi, lo = maximum_filter3(hi), minimum_filter3(lo)
         if p.pixel is not None:     # the first-bounce return shares its pixel with two-bounce samples
             p1 = transient_binning.first_bounce_path(p.first_bounce, sensor.laser_origin, sensor.sensor_origin)
             hi[p.pixel] = max(hi[p.pixel], p1)

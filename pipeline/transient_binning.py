@@ -388,7 +388,8 @@ def bin_windows(pixels, paths, amps, n_pixels: int, sensor, window_bins: int, *,
         return start, window, needed
     flat = bins_first.reshape(-1)
     table = kernel.weight_table()
-    table32 = None if table is None else table.astype(np.float32)
+    # taps-first (K, TABLE_STEPS + 1): each chunk's weights come out (K, N), one contiguous row per tap for add.at
+    taps32 = None if table is None else np.ascontiguousarray(table.T, np.float32)
     amps32 = amps.astype(np.float32)
     for a in range(0, len(paths), BIN_CHUNK):      # bounded temporaries (N x K per chunk)
         b = slice(a, a + BIN_CHUNK)
@@ -396,16 +397,21 @@ def bin_windows(pixels, paths, amps, n_pixels: int, sensor, window_bins: int, *,
         q = f - start[pixels[b]]
         q *= n_pixels
         q += pixels[b]                              # flat index of each sample's first tap in bins_first
-        if table32 is None:                         # box pulse: one bin
-            w = amps32[b, None]
+        if taps32 is None:                          # box pulse: one bin
+            w = amps32[None, b]
         else:
-            w = table32[np.minimum(((v[b] - f) * TABLE_STEPS + 0.5).astype(np.int64), TABLE_STEPS)]
-            w *= amps32[b, None]
+            row = v[b] - f                          # the table row: round((v - first) * TABLE_STEPS), in place
+            row *= TABLE_STEPS
+            row += 0.5
+            row = row.astype(np.intp)
+            np.minimum(row, TABLE_STEPS, out=row)
+            w = taps32.take(row, axis=1)
+            w *= amps32[None, b]
         cut = f.min() < 0 or f.max() + k_sup > t    # pulse tails past the range
-        for j in range(w.shape[1]):                 # one tap at a time: no (N, K) index array
+        for j in range(w.shape[0]):                 # one tap at a time: no (N, K) index array
             if cut:
                 ok = (f + j >= 0) & (f + j < t)
-                np.add.at(flat, q[ok] + j * n_pixels, w[ok, j])
+                np.add.at(flat, q[ok] + j * n_pixels, w[j, ok])
             else:
-                np.add.at(flat, q + j * n_pixels, w[:, j])
+                np.add.at(flat, q + j * n_pixels, w[j])
     return start, window, needed

@@ -70,7 +70,9 @@ def machine_line(info: dict) -> str:
     parts.append(f"GPU {info['gpu']}" if info.get("gpu") else "no GPU")
     parts.append(f"torch {info.get('torch')}, numpy {info.get('numpy')}")
     load = info.get("loadavg_1min")
-    parts.append(f"load average {load:.2f}" if isinstance(load, (int, float)) else "load average unknown")
+    end = info.get("loadavg_1min_end")
+    parts.append((f"load average {load:.2f}" + (f" (end {end:.2f})" if isinstance(end, (int, float)) else ""))
+                 if isinstance(load, (int, float)) else "load average unknown")
     return ", ".join(parts)
 
 
@@ -124,9 +126,11 @@ def git_commit(root: Path) -> str | None:
         return None
 
 
-def results_document(suite, settings, rows, quick: bool, machine: dict, command: str, root: Path) -> dict:
+def results_document(suite, settings, rows, quick: bool, machine: dict, command: str, root: Path,
+                     commit: str | None = None) -> dict:
+    """`commit`: the code the run started from (default: HEAD now; a long run should pass its start's)."""
     measured = {"date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-                "commit": git_commit(root), "by": "python -m benchmarks"}
+                "commit": commit or git_commit(root), "by": "python -m benchmarks"}
     return {"machine": machine,
             "suite": {"name": suite.name, "description": suite.description, "quick": quick, "command": command,
                       "measured": measured},
@@ -234,19 +238,78 @@ def markdown_table(rows, columns) -> str:
 
 def default_table(results: dict) -> str:
     rows = results["rows"]
-    cols = [(k, k) for k in ROW_KEYS] + [(k, k) for k in error_fields(rows)[:6]]
+    cols = [(k, k) for k in ROW_KEYS] + [(k, k) for k in error_fields(rows)[:6] if k != "run"]
+    cols += [("run", "run")] if len(results.get("runs") or ()) > 1 else []
     return markdown_table(rows, cols)
 
 
 def provenance(results: dict) -> str:
-    """The line under every README table: command, machine, load, when and by whom it was measured."""
-    s, m = results["suite"], results["machine"]
-    meas = s.get("measured", {})
-    when = meas.get("date", "unknown date")
+    """The line under every README table: command, machine, load, when and by whom it was measured; for
+    a merged document (several runs) one such line per run, numbered as the rows' `run` field."""
+    runs = results.get("runs") or [run_record(results)]
+    if len(runs) == 1:
+        return f"<sub>{_run_line(runs[0])}</sub>"
+    return "<sub>" + "<br>".join(f"run {i}: {_run_line(r)}" for i, r in enumerate(runs, 1)) + "</sub>"
+
+
+def _run_line(run: dict) -> str:
+    meas = run.get("measured") or {}
     by = meas.get("by", "")
     stale = "" if by == "python -m benchmarks" else f" ({by})"
     commit = f", commit {meas['commit']}" if meas.get("commit") else ""
-    return f"<sub>`{s.get('command')}`{' (quick)' if s.get('quick') else ''}; {machine_line(m)}; {when}{commit}{stale}</sub>"
+    return (f"`{run.get('command')}`{' (quick)' if run.get('quick') else ''}; {machine_line(run.get('machine') or {})}; "
+            f"{meas.get('date', 'unknown date')}{commit}{stale}")
+
+
+# -- merging runs: some methods re-measured, the other rows kept with their own provenance ------
+
+ROW_ID = ("method", "scene")
+
+
+def run_record(doc: dict) -> dict:
+    """One run's provenance from its results document: command, quick, date, commit, machine (load at its
+    start and end), settings, total wall time."""
+    s = doc["suite"]
+    return {"command": s.get("command"), "quick": s.get("quick"), "measured": s.get("measured", {}),
+            "machine": doc.get("machine", {}), "settings": doc.get("settings"), "total_wall_s": s.get("total_wall_s")}
+
+
+def merge_results(old: dict, new: dict, row_id=ROW_ID) -> dict:
+    """`new` (one run's document) with the rows of `old` it did not re-measure, rows keyed by `row_id`
+    (default method and scene; a suite may add fields, Suite.row_id):
+    a new row replaces the old one in place, new keys follow. Each row's `run` (1-based) points into the
+    document's `runs`, the provenance of the run that measured it; runs no row comes from are dropped.
+    Top-level machine/suite/settings are the new run's. A key twice in one document raises RowError."""
+    old_runs = old.get("runs") or [run_record(old)]
+    new_run = run_record(new)
+    fresh = rows_by_id(new["rows"], "the new run", row_id)
+    rows_by_id(old["rows"], "the existing results", row_id)
+    pairs = []
+    for r in old["rows"]:
+        k = tuple(r.get(f) for f in row_id)
+        pairs.append((fresh.pop(k), new_run) if k in fresh else (r, old_runs[int(r.get("run") or 1) - 1]))
+    pairs += [(r, new_run) for r in fresh.values()]
+    runs, rows = [], []
+    for r, run in pairs:
+        idx = next((i for i, x in enumerate(runs) if x is run), None)
+        if idx is None:
+            runs.append(run)
+            idx = len(runs) - 1
+        rows.append({**{k: v for k, v in r.items() if k != "run"}, "run": idx + 1})
+    return {**new, "runs": runs, "rows": rows}
+
+
+def rows_by_id(rows, what: str, row_id=ROW_ID) -> dict:
+    """{key: row}, key = the row's `row_id` fields; RowError naming the first key seen twice (such rows
+    cannot be merged)."""
+    out = {}
+    for r in rows:
+        k = tuple(r.get(f) for f in row_id)
+        if k in out:
+            named = ", ".join(f"{f} {v!r}" for f, v in zip(row_id, k))
+            raise RowError(f"cannot merge: {what} has two rows for {named} (rows are merged by {', '.join(row_id)})")
+        out[k] = r
+    return out
 
 
 MARKER = re.compile(r"(<!-- bench:(?P<name>[\w-]+) -->\n)(?P<body>.*?)(<!-- /bench:(?P=name) -->)", re.S)

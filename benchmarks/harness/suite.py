@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from benchmarks.harness.report import ROW_ID
 from torch_recon.contract.errors import SettingsError  # noqa: F401 (re-export: the harness CLI catches it)
 from torch_recon.contract.settings import parse_assignments, with_values
 
@@ -22,7 +23,8 @@ class Suite:
     """One benchmark: its quick and full settings (instances of the suite's own dataclass) and the
     function that measures; `run(settings, ctx) -> list[dict]`, one dict per row (report.ROW_KEYS first,
     then the error fields). `plot(rows, settings, path)` draws its PNG (default: report.plot_rows);
-    `readme(results) -> str` renders its README table (default: report.markdown_table)."""
+    `readme(results) -> str` renders its README table (default: report.markdown_table). `row_id`: the
+    fields that name a row when `run --merge` keeps the rows a run did not re-measure."""
     name: str
     description: str
     quick: Any
@@ -30,6 +32,7 @@ class Suite:
     run: Callable[[Any, Any], list]
     plot: Callable | None = None
     readme: Callable | None = None
+    row_id: tuple = ROW_ID
 
     def settings(self, quick: bool, overrides=()) -> Any:
         """The quick or full settings with `key=value` overrides (values typed by the dataclass field)."""

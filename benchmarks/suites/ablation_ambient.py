@@ -192,4 +192,4 @@ SUITE = Suite("ablation_ambient", "ablation: ambient light, lidar +- time gate v
               quick=Settings(levels=("0", "1"), resolution=32, grid=48, steps=20, budget_s=60.0, test_views=6,
                              test_view_resolution=32),
               full=Settings(levels=("0", "0.1", "1", "10"), steps=None, budget_s=60.0), run=run, plot=plot,
-              readme=readme)
+              readme=readme, row_id=("method", "scene", "level"))

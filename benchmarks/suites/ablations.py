@@ -136,7 +136,7 @@ def ablation(name, fn, full_levels, quick_levels, description):
     quick = Settings(levels=quick_levels, resolution=32, grid=48, steps=20, budget_s=60.0, test_views=6,
                      test_view_resolution=32)
     return Suite(f"ablation_{name}", description, quick=quick, full=Settings(levels=full_levels), run=fn, plot=plot,
-                 readme=readme)
+                 readme=readme, row_id=("method", "scene", "level"))
 
 
 SUITES = [

@@ -189,7 +189,7 @@ def plot(rows, s, path):
                             title="shadow F1 against the ray-cast truth vs preprocessing time")
 
 
-SUITE = Suite("measurements", __doc__.splitlines()[0], run=run, readme=readme, plot=plot,
+SUITE = Suite("measurements", __doc__.splitlines()[0], run=run, readme=readme, plot=plot, row_id=("method", "scene", "resolution"),
               quick=Settings(analytic_resolutions=(32,), poisson_resolution=32, cycles_resolutions=(32,),
                              test_views=6, test_view_resolution=32, shadow_scenes=("thin-structures",),
                              shadow_resolution=32),

@@ -13,10 +13,11 @@ recall@2cm >= 0.85, spurious <= 0.02, no degenerate faces.
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass
 
 from benchmarks.harness import Suite, runners
-from benchmarks.harness.report import fmt, markdown_table
+from benchmarks.harness.report import fmt, markdown_table, plot_rows
 from torch_recon.contract.scenes import OBJECT_SCENES
 
 TIMES = ("wall_s", "cpu_s", "peak_rss_mb")
@@ -48,6 +49,18 @@ def _object_fields(ctx, eval_dir: str) -> dict:
 FIELDS = ("depth_l1_m", "depth_psnr_db", "n_test_views")
 
 
+def _load() -> float:
+    """The 1-minute load average when a row ends: a wall-clock budget trains fewer steps on a busy machine."""
+    return round(os.getloadavg()[0], 2)
+
+
+def _keep(ctx, row: dict) -> dict:
+    """Append the row to work_dir/rows.jsonl: partial results survive an interrupted run."""
+    with open(ctx.work_dir / "rows.jsonl", "a") as f:
+        f.write(json.dumps(row) + "\n")
+    return row
+
+
 def run(s: Settings, ctx) -> list:
     rows = []
     for scene in s.scenes:
@@ -67,33 +80,46 @@ def run(s: Settings, ctx) -> list:
                 else:
                     res = runners.fit(ctx, ds, out, mode=method, timeout=s.timeout_s)
                     eval_dir = f"{out}-eval"
-            except runners.Refused as exc:
-                rows.append({"method": method, "scene": scene, **dict.fromkeys(TIMES), "note": note,
-                             "refused": str(exc)})
+            except runners.Refused as exc:      # also NoSurface: a short platonerf budget may leave the field empty
+                rows.append(runners.refused_row(method, scene, exc, note=note, steps=exc.times.get("steps"),
+                                                load_1min=_load()))
+                _keep(ctx, rows[-1])
                 continue
             rows.append({"method": method, "scene": scene, **{k: res.get(k) for k in TIMES},
-                         **{k: res.get(k) for k in FIELDS}, **_object_fields(ctx, eval_dir), "note": note})
-            r = rows[-1]
-            with open(ctx.work_dir / "rows.jsonl", "a") as f:     # partial results survive an interrupted run
-                f.write(json.dumps(r) + "\n")
+                         "steps": res.get("steps"), "stopped": res.get("stopped"), "train_s": res.get("train_s"),
+                         "load_1min": _load(), **{k: res.get(k) for k in FIELDS}, **_object_fields(ctx, eval_dir),
+                         "note": note})
+            r = _keep(ctx, rows[-1])
             ctx.log(f"  {scene} {method}: L1 {fmt(r['depth_l1_m'])} m, F@2cm {fmt(r['obj_f2cm'])}, "
                     f"hidden R@2cm {fmt(r['hidden_recall_2cm'])}, spurious {fmt(r['spurious'])}, "
                     f"degenerate {r['degenerate_faces']}, {fmt(r['wall_s'])} s")
     return rows
 
 
-COLUMNS = (("scene", "scene"), ("method", "method"), ("wall_s", "time s", ".0f"),
-           ("depth_l1_m", "L1 m (valid views)", ".4f"), ("depth_psnr_db", "PSNR dB", ".2f"),
-           ("obj_f1cm", "obj F@1cm", ".3f"), ("obj_f2cm", "obj F@2cm", ".3f"), ("obj_f5cm", "obj F@5cm", ".3f"),
+COLUMNS = (("scene", "scene"), ("method", "method"), ("wall_s", "time s", ".0f"), ("steps", "steps"),
+           ("load_1min", "load", ".1f"), ("depth_l1_m", "L1 m (valid views)", ".4f"), ("depth_psnr_db", "PSNR dB", ".2f"),
+           ("obj_f2cm", "obj F@2cm", ".3f"), ("obj_f5cm", "obj F@5cm", ".3f"),
            ("hidden_recall_2cm", "hidden R@2cm", ".3f"), ("spurious", "spurious", ".3f"),
            ("degenerate_faces", "degenerate faces"), ("n_test_views", "views valid"),
-           ("n_test_views_invalid", "invalid"), ("note", "note"))
+           ("n_test_views_invalid", "invalid"), ("note", "note"), ("run", "run"))
 
 
 def readme(results: dict) -> str:
-    """The README table: the issue's target columns, time beside each row (the harness adds provenance)."""
-    return markdown_table(results["rows"], COLUMNS)
+    """The README table: the issue's target columns, time, training steps reached and load beside each row,
+    the run that measured it (the harness adds the runs' provenance)."""
+    def order(r):       # by scene, then method, whichever run measured it
+        scenes, methods = list(OBJECT_SCENES), list(Settings.methods)
+        return (scenes.index(r["scene"]) if r["scene"] in scenes else len(scenes),
+                methods.index(r["method"]) if r["method"] in methods else len(methods))
+    rows = [{**r, "note": "; ".join(filter(None, [runners.failure(r), r.get("note")])) or None}
+            for r in sorted(results["rows"], key=order)]
+    return markdown_table(rows, COLUMNS)
+
+
+def plot(rows, settings, path):
+    """Object F-score at 2 cm against the method's wall time, one colour per method (no surface: not drawn)."""
+    plot_rows(rows, path, title="objects: object F@2cm against wall time", y="obj_f2cm")
 
 
 SUITE = Suite("objects", "object-level accuracy on the labelled example scenes (issue 11 targets)",
-              quick=Settings(methods=("fast",)), full=Settings(), run=run, readme=readme)
+              quick=Settings(methods=("fast",)), full=Settings(), run=run, readme=readme, plot=plot)

@@ -56,16 +56,29 @@ def free_space(mesh, origins, clearance_m: float = 0.05, n_dirs: int = FREE_SPAC
     dirs = sphere_directions(n_dirs)
     valid = np.ones(len(origins), bool)
     reasons = [""] * len(origins)
-    for i, o in enumerate(origins):
-        if not np.all(np.isfinite(o)) or np.any(o < lo) or np.any(o > hi):
-            valid[i], reasons[i] = False, "outside the scene's bounding box"
+    inside = np.all(np.isfinite(origins), axis=1) & ~np.any(origins < lo, axis=1) & ~np.any(origins > hi, axis=1)
+    for i in np.flatnonzero(~inside):
+        valid[i], reasons[i] = False, "outside the scene's bounding box"
+    cams = np.flatnonzero(inside)
+    if not len(cams):
+        return valid, reasons
+    # one Embree call for every camera's rays (ray r: camera cams[r // n_dirs], direction r % n_dirs); each
+    # ray's first hit does not depend on the others, so this is the per-camera loop's result, ~100x fewer calls
+    ray_origins = np.repeat(origins[cams], n_dirs, axis=0)
+    locs, ray_idx, tri = mesh.ray.intersects_location(ray_origins, np.tile(dirs, (len(cams), 1)),
+                                                      multiple_hits=False)
+    order = np.argsort(ray_idx, kind="stable")
+    locs, ray_idx, tri = locs[order], ray_idx[order], tri[order]
+    cam_of_ray = ray_idx // n_dirs
+    dist_all = np.linalg.norm(locs - ray_origins[ray_idx], axis=1)
+    back_all = np.einsum("ij,ij->i", dirs[ray_idx % n_dirs], mesh.face_normals[tri]) > 0
+    bounds = np.searchsorted(cam_of_ray, np.arange(len(cams) + 1))
+    for k, i in enumerate(cams):
+        a, b = bounds[k], bounds[k + 1]
+        if a == b:
             continue
-        locs, ray_idx, tri = mesh.ray.intersects_location(np.broadcast_to(o, dirs.shape), dirs, multiple_hits=False)
-        if len(ray_idx) == 0:
-            continue
-        dist = np.linalg.norm(locs - o, axis=1)
-        back = np.einsum("ij,ij->i", dirs[ray_idx], mesh.face_normals[tri]) > 0
-        if back.mean() * len(ray_idx) >= BACK_FACE_SHARE * n_dirs:
+        dist, back = dist_all[a:b], back_all[a:b]
+        if back.mean() * (b - a) >= BACK_FACE_SHARE * n_dirs:
             valid[i], reasons[i] = False, f"inside geometry ({int(back.sum())} of {n_dirs} rays hit a back face)"
         elif dist.min() < clearance_m:
             valid[i], reasons[i] = False, f"{dist.min():.3f} m from a surface (clearance {clearance_m} m)"

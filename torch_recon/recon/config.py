@@ -99,6 +99,11 @@ class FastConfig:
                                          # more than twice this behind it
     plane_free_band_voxels: float = 2.0  # the mesh keeps faces facing completed empty space this close
                                          # to a completed plane
+    # --- visible surfaces of the mesh (helper surface, session 7) ---
+    mesh_front_of_visible: bool = True  # the mesh also keeps faces facing the voxels just in front of a measured
+                                        # visible point (along its normal): cave-chair start field, sensor
+                                        # view pixels the mesh misses (pin-holes at the grazing ceiling next
+                                        # to the back wall) 87 -> 3
 
 
 @dataclass

@@ -18,7 +18,7 @@ from .init import in_view, initial_grid, scene_bbox
 from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total_loss
 from .renderer import render_field, render_pruned, secondary_rays
 from .sampler import importance_positions, merged_intervals, ray_box, uniform_intervals
-from .visible_surface_init import surface_offset
+from .visible_surface_init import in_front_of_visible_surface, surface_offset, visible_surface
 
 
 class ReconstructionModel:
@@ -121,7 +121,13 @@ class FastModel(ReconstructionModel):
         """Voxels (nx, ny, nz) the measurements show empty, on the current grid (for the mesh export)."""
         if tuple(self.free.shape) != tuple(self.grid.box.shape):
             self.free = initial_grid(self.data, self.grid.box, self.fc, self.offset, self._view(self.grid.box))[1]
-        return self.free.cpu().numpy()
+        free = self.free
+        if self.fc.mesh_front_of_visible:   # measured surfaces keep their faces where no camera ray passed
+            box = self.grid.box
+            vol, iso = self.surface_volume()
+            front = in_front_of_visible_surface(visible_surface(self.data, box), box, torch.from_numpy(vol < iso))
+            free = free | front.to(free.device)
+        return free.cpu().numpy()
 
     def offset_for(self, voxel):
         return max(self.cfg.loss.secondary_offset_m, self.fc.secondary_offset_voxels * voxel)

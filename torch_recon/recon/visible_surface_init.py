@@ -124,3 +124,26 @@ def surface_offset(density_scale: float, voxel: float, slope: float) -> float:
     cum = np.cumsum(sp) * (x[1] - x[0])                     # integral of softplus from -inf to x
     need = math.log(2.0) * slope / (density_scale * voxel)
     return float(np.interp(need, cum, x))
+
+
+def in_front_of_visible_surface(surface, box: GridBox, empty: torch.Tensor,
+                                depths_voxels=(0.5, 1.0, 1.5)) -> torch.Tensor:
+    """Voxels (nx, ny, nz) bool just in front of the measured visible surface: those holding x + s n for s
+    in `depths_voxels` voxels (x a surface point, n its normal facing the sensor), grown by one voxel and
+    kept where the field is `empty` (bool (nx, ny, nz): below the surface level). The ray reached x, so
+    the space just in front of it is empty; the sensor's own free-space march stops a voxel short of the
+    surface along the ray, so next to a concave edge seen at a grazing angle (the ceiling meeting the
+    back wall) no camera ray crosses the voxels below the surface. The growth covers the gaps between
+    the footprints of neighbouring pixels (several voxels long at grazing incidence).
+    surface: (points, normals) from `visible_surface`."""
+    pts, nrm = surface
+    out = torch.zeros(box.shape, dtype=torch.float32)
+    if len(pts) == 0:
+        return out > 0
+    lo = box.bbox_min.cpu().numpy().astype(np.float64)
+    shape = np.array(box.shape)
+    for s in depths_voxels:
+        idx = np.floor((pts + s * box.voxel * nrm - lo) / box.voxel).astype(np.int64)
+        idx = idx[np.all((idx >= 0) & (idx < shape), 1)]
+        out[tuple(torch.from_numpy(idx).T)] = 1.0
+    return (_dilate_cube(out, 1) > 0) & empty.cpu()

@@ -59,8 +59,8 @@ def test_floor_outside_the_view_is_completed_and_known_free_space_stays_empty():
         view = m._view(m.grid.box)
         raw = m.grid.raw_xyz().detach()
         centres = m.grid.box.centres()
-        results[complete] = (raw, view, centres, m.free_evidence(), m.grid.box.voxel)
-    raw, view, centres, mesh_free, voxel = results[True]
+        results[complete] = (raw, view, centres, m.free_evidence(), m.grid.box.voxel, m.free.cpu().numpy())
+    raw, view, centres, mesh_free, voxel, _ = results[True]
     x, y, z = centres[..., 0], centres[..., 1], centres[..., 2]
     out = ~view & (y > 0.1) & (y < 0.6) & (x.abs() < 1.2)   # floor next to the sensor, between the side walls
     below = out & (z < -0.25 * voxel)
@@ -69,7 +69,8 @@ def test_floor_outside_the_view_is_completed_and_known_free_space_stays_empty():
     assert bool((raw[below] > 0).all()), "the floor plane continues below z = 0 outside the view"
     assert bool((raw[above] < 0).all()), "the space above it stays empty"
     assert mesh_free[(above & (z < 2 * voxel)).numpy()].any(), "the completed floor is meshed"
-    raw_off, _, _, free_off, _ = results[False]
+    raw_off, _, _, _, _, free_off = results[False]     # the measured free space (the mesh's adds the space
+                                                       # in front of visible points)
     # without completion only the visible floor's ramp reaches a voxel or two past the edge of the view
     assert int((raw_off[below] > 0).sum()) < 0.7 * int(below.sum())
     # known free space (seen through by the sensor) is never filled by the completion
