@@ -89,8 +89,9 @@ class FastConfig:
                                       # camera's or a spot's rays within this many voxels of its centre show it free
     footprint_views: int = 1          # ... free from at least this many viewpoints (sensor, spots): a thin part's
                                       # shadow a spot's pixels miss leaves it free from that spot alone
-    trim_hull_voxels: int = 0         # > 0: hull voxels no shadowed ray crosses, reachable from measured free space
-                                      # through such voxels within this many voxels, start empty (recon/hull_trim.py)
+    trim_hull_voxels: int = 8         # > 0: hull voxels no shadowed ray crosses, reachable from measured free space
+                                      # through such voxels within this many voxels, start empty (recon/hull_trim.py).
+                                      # Cave-chair trained: spurious 1.05 -> 0.49 %, chair unchanged; 0: old start
     # --- start field outside the sensor's view and mesh (recon/init.py, recon/unobserved.py) ---
     complete_unobserved: bool = True  # outside the view the planes bounding the observation continue (walls,
                                       # floor, ceiling next to the sensor); False: nothing is put there
