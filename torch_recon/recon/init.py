@@ -6,7 +6,8 @@ Evidence, voxel by voxel (priority top to bottom):
 3. crossed by at least `carve_min_lit` lit secondary rays x -> l: free (shadow carving);
 4. otherwise, inside the sensor's view (hidden from the sensor and never lit through): occupied, the
    shadow hull of BF Lidar; outside the view (no measurement reaches it): the planes bounding the
-   observation continue there (`unobserved.py`).
+   observation continue there (`unobserved.py`). Hull voxels no shadowed ray crosses, connected to measured
+   free space, start empty (`hull_trim.py`, `fast.trim_hull_voxels`): no measurement needs them.
 Near visible surfaces the raw density is a ramp in the point-to-plane signed distance to the measured
 surface (normals from the depth image), so planar walls start planar at sub-voxel accuracy.
 Which voxels are known free (2 and 3) is kept: the mesh exporter reports only surfaces that face
