@@ -263,6 +263,12 @@ if __name__ == "__main__":
     status = main()
     # leave without Blender's own shutdown (add-ons unregistered, every datablock freed: 0.3 s of a 128 x 128
     # run): the dataset is committed, the render's temporary folder removed and every thread joined by now
+    # Blender's session temporary folder (bpy.app.tempdir) is one thing that shutdown removes: do it here
+    _bpy = sys.modules.get("bpy")
+    if _bpy is not None and _bpy.app.tempdir:
+        import shutil
+
+        shutil.rmtree(_bpy.app.tempdir, ignore_errors=True)
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(status)

@@ -239,3 +239,22 @@ def test_laser_offset_from_the_sensor(blend_dir, tmp_path):
         lit[np.unravel_index(np.argmax(e_ref), lit.shape)] = False
         assert np.median(e[lit] / e_ref[lit]) == pytest.approx(1.0, abs=0.01)
         assert (np.abs(cube.argmax(-1) - ref.argmax(-1)) <= 1)[lit].mean() >= 0.98
+
+
+def test_leaves_no_blender_temp_folder(tmp_path):
+    """simulate.py leaves by os._exit (skipping Blender's shutdown), so it removes Blender's session
+    temporary folder itself: nothing may be left in TMPDIR after a successful run."""
+    import os
+    import subprocess
+    import sys
+
+    from tests.support.sim_fixtures import ROOT
+
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    env = {**os.environ, "TMPDIR": str(tmp), "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([sys.executable, str(ROOT / "pipeline" / "simulate.py"), "--out", str(tmp_path / "d"),
+                           "--example", "cave-chair", *map(str, SMALL), "--spots", "1"],
+                          capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert not list(tmp.iterdir())
