@@ -9,17 +9,27 @@ torch_recon.contract.analytic rendered at `reference_subpixel`^2 stratified samp
 - shadow_iou: IoU of the lit masks (energy above 1e-6 of the median lit pixel's: penumbra pixels
   count as lit, rounding noise ~1e-16 on surfaces coplanar with the spot does not);
 - energy ratio simulated / reference per lit pixel: 1st, 50th and 99th percentile.
-Goals (issue 14): within_1_bin >= 0.99 and shadow_iou >= 0.98. mitransient (an independent path
-tracer, ../shared/REFERENCE_RENDERER.md) is not run here; tests/pipeline/test_sim_mitransient.py has it.
+Goals (issue 14): within_1_bin >= 0.99 and shadow_iou >= 0.98.
+
+Suite fidelity_mitransient (setting reference='mitransient'; its own results JSON): the same
+metrics against mitransient, an independent path tracer (benchmarks/mitransient_reference.py,
+optional: refused with one line when it is not installed), `reference_spp` jittered samples per
+pixel. Its laser is a point light (energy ~ cos(theta_in) / |l - o|^2 at the spot, in its own units)
+where the simulator's is a collimated beam, so each spot's reference cube is first scaled by one
+factor: the simulated / reference energy summed over the pixels both light (first-bounce pixel
+out). laser_constant = factor * cos(theta_in) / |l - o|^2 must then be the same for every spot.
+It records no one-bounce return: the first-bounce pixel (the simulated cube's brightest) is left
+out. Both sample the spot as a point, so partly lit pixels are footprint-partial only.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from benchmarks.harness import Suite
+from torch_recon.contract.errors import SettingsError
 
 SIMULATE = "pipeline/simulate.py"
 LIT_FLOOR = 1e-6
@@ -37,6 +47,34 @@ class Settings:
     samplings: tuple[str, ...] = ("default", "fixed 1", "fixed 4", "fixed 16", "fixed 64")
     reference_subpixel: int = 16       # the analytic reference's samples per pixel side
     reference_batch: int = 4           # spots per analytic call (memory: batch x H x W x T float64)
+    reference: str = "analytic"        # or "mitransient" (suite fidelity_mitransient)
+    reference_spp: int = 1024          # mitransient's samples per pixel
+    reference_seeds: int = 2           # mitransient renders per spot: the 2nd measures the reference's own noise
+
+    def __post_init__(self):
+        if self.reference not in REFERENCES:
+            raise SettingsError("reference", f"expected one of {', '.join(REFERENCES)}, got {self.reference!r}")
+
+
+REFERENCES = {"analytic": "fidelity", "mitransient": "fidelity_mitransient"}     # reference -> the suite that runs it
+
+
+@dataclass(frozen=True)
+class FidelitySuite(Suite):
+    """A fidelity suite: its settings also refuse a reference it does not write (each reference has its
+    own suite, so its own results JSON) and mitransient when it is not installed."""
+
+    def settings(self, quick: bool, overrides=()):
+        st = super().settings(quick, overrides)
+        if REFERENCES[st.reference] != self.name:
+            raise SettingsError("reference", f"suite {self.name} does not measure against {st.reference}: "
+                                f"run `python -m benchmarks run {REFERENCES[st.reference]}` (its own results JSON)")
+        if st.reference == "mitransient":
+            from benchmarks.mitransient_reference import missing
+            why = missing()
+            if why:
+                raise SettingsError("reference", why)
+        return st
 
 
 def reference_cubes(example: str, sensor, directions, subpixel: int, batch: int) -> list:
@@ -51,10 +89,11 @@ def reference_cubes(example: str, sensor, directions, subpixel: int, batch: int)
     return out
 
 
-def compare(cube: np.ndarray, ref: np.ndarray) -> dict:
-    """Agreement of one spot's simulated (H, W, T) cube with the reference cube (same units)."""
+def compare(cube: np.ndarray, ref: np.ndarray, first_bounce=None) -> dict:
+    """Agreement of one spot's simulated (H, W, T) cube with the reference cube (same units).
+    `first_bounce`: the (row, column) left out; default the reference's brightest pixel."""
     e, e_ref = cube.sum(-1, dtype=np.float64), ref.sum(-1, dtype=np.float64)
-    fb = np.unravel_index(np.argmax(e_ref), e_ref.shape)     # the first-bounce pixel dominates
+    fb = np.unravel_index(np.argmax(e_ref), e_ref.shape) if first_bounce is None else first_bounce
     e[fb] = e_ref[fb] = 0.0
     floor = LIT_FLOOR * np.median(e_ref[e_ref > 0]) if (e_ref > 0).any() else 0.0
     mask, mask_ref = e > floor, e_ref > floor
@@ -65,7 +104,7 @@ def compare(cube: np.ndarray, ref: np.ndarray) -> dict:
     return {"lit_pixels": int(lit.sum()), "within_1_bin": float(peak_ok[lit].mean()) if lit.any() else float("nan"),
             "shadow_iou": float((mask & mask_ref).sum() / union) if union else 1.0,
             "dark_where_lit": int((~mask & mask_ref).sum()), "lit_where_dark": int((mask & ~mask_ref).sum()),
-            "ratios": ratio}
+            "ratios": ratio, "mask": mask, "mask_ref": mask_ref, "lit": lit, "peak_ok": peak_ok}
 
 
 def _row(label, scene, times, spot, m):
@@ -86,17 +125,24 @@ def run(s: Settings, ctx) -> list[dict]:
                          "--spots", str(s.spots), "--photons", "0", "--no-gt", *SAMPLINGS[label], "--out", str(out)])
         times = r.times()
         ds = load_dataset(out)
-        spots = list(ds.iter_transients())
-        if refs is None:
+        spots = [(spot, tr.dense()) for spot, tr in ds.iter_transients()]
+        if refs is None and s.reference == "mitransient":
+            from benchmarks.suites.fidelity_mitransient import reference_spots
+            refs = reference_spots(s, ds.sensor, spots, ctx)
+        elif refs is None:
             with ctx.timed() as t:
                 refs = reference_cubes(s.example, ds.sensor, [sp.laser_direction for sp, _ in spots],
                                        s.reference_subpixel, s.reference_batch)
             ctx.log(f"  analytic reference ({s.reference_subpixel}^2 samples/pixel): {t.wall_s:.1f} s")
         per = []
-        for (spot, tr), ref in zip(spots, refs):
-            m = compare(tr.dense(), ref)
+        for (spot, cube), ref in zip(spots, refs):
+            if s.reference == "mitransient":
+                from benchmarks.suites.fidelity_mitransient import compare_to_mitransient
+                m, extra = compare_to_mitransient(cube, ref)
+            else:
+                m, extra = compare(cube, ref), {}
             per.append(m)
-            rows.append(_row(label, s.example, times, spot.id, m))
+            rows.append({**_row(label, s.example, times, spot.id, m), **extra})
         pooled = {"lit_pixels": sum(m["lit_pixels"] for m in per),
                   "within_1_bin": float(np.average([m["within_1_bin"] for m in per],
                                                    weights=[m["lit_pixels"] for m in per])),
@@ -129,10 +175,16 @@ def plot(rows, settings, path):
         ax.set_title(name, fontsize=9)
         ax.legend(fontsize=7)
     fig.suptitle(f"{settings.example} {settings.resolution} x {settings.resolution}, {settings.spots} spots, "
-                 f"vs analytic at {settings.reference_subpixel}^2 samples/pixel", fontsize=9)
+                 f"vs {_reference_name(settings)}", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def _reference_name(s) -> str:
+    if s.reference == "mitransient":
+        return f"mitransient at {s.reference_seeds} x {s.reference_spp} samples/pixel"
+    return f"analytic at {s.reference_subpixel}^2 samples/pixel"
 
 
 def readme(results) -> str:
@@ -150,6 +202,6 @@ def readme(results) -> str:
     return "\n".join(lines)
 
 
-SUITE = Suite("fidelity", __doc__.splitlines()[0], run=run, plot=plot, readme=readme,
+SUITE = FidelitySuite("fidelity", __doc__.splitlines()[0], run=run, plot=plot, readme=readme,
               quick=Settings(resolution=64, spots=2, samplings=("default", "fixed 4"), reference_subpixel=8),
               full=Settings())

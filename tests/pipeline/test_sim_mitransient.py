@@ -1,8 +1,9 @@
 """The Cycles simulator (pipeline/simulate.py) against an independent path tracer: mitransient (Mitsuba 3), slow.
 
 Needs `pip install mitransient "mitsuba==3.8.0"` (not a project dependency; see
-../shared/REFERENCE_RENDERER.md); skipped without it. mitransient's laser is a projector
-emitter in its own units, so energies are compared up to one global factor per spot
+../shared/REFERENCE_RENDERER.md); skipped without it. The Mitsuba scene is built in
+benchmarks/mitransient_reference.py (shared with the fidelity_mitransient benchmark).
+mitransient's laser is a projector emitter in its own units, so energies are compared up to one global factor per spot
 (the factor must be the same for every pixel), and time by each pixel's energy-weighted
 mean bin (mitransient jitters samples over the pixel; the simulator takes stratified ones).
 """
@@ -12,46 +13,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-pytest.importorskip("bpy")
-mi = pytest.importorskip("mitsuba")
+from benchmarks.mitransient_reference import MitransientRenderer, missing
+from torch_recon.contract import scenes
+from torch_recon.contract.dataset import load_dataset
 
-from torch_recon.contract import scenes  # noqa: E402
-from torch_recon.contract.dataset import load_dataset  # noqa: E402
+pytest.importorskip("bpy")
+if missing():
+    pytest.skip(missing(), allow_module_level=True)
 
 from tests.support.sim_fixtures import simulate  # noqa: E402
 
 RES, SPP = 64, 256
-
-
-def mitransient_cube(ex, target, sensor, tmp_path):
-    import trimesh
-
-    mi.set_variant("llvm_ad_mono")
-    pytest.importorskip("mitransient")
-    shapes = {}
-    for i, p in enumerate(ex.parts):
-        fn = str(tmp_path / f"part{i}.ply")
-        trimesh.Trimesh(p.vertices, p.faces, process=False).export(fn)
-        shapes[f"s{i}"] = {"type": "ply", "filename": fn, "face_normals": True,
-                           "bsdf": {"type": "diffuse", "reflectance": {"type": "uniform", "value": p.albedo}}}
-    t = mi.ScalarTransform4f
-    c2w = np.asarray(sensor.camera_to_world)
-    eye, ahead, up = c2w[:3, 3], c2w[:3, 3] - c2w[:3, 2], c2w[:3, 1]
-    scene = mi.load_dict({
-        "type": "scene",
-        "integrator": {"type": "transient_nlos_path", "nlos_laser_sampling": True,
-                       "account_first_and_last_bounces": True, "max_depth": 2, "temporal_filter": "box"},
-        "sensor": {"type": "perspective", "fov": float(np.degrees(sensor.fov_rad)), "fov_axis": sensor.fov_axis,
-                   "near_clip": 1e-4, "to_world": t().look_at(origin=eye.tolist(), target=ahead.tolist(),
-                                                              up=up.tolist()),
-                   "film": {"type": "transient_hdr_film", "width": sensor.width, "height": sensor.height,
-                            "temporal_bins": sensor.bins, "bin_width_opl": sensor.bin_width_m,
-                            "start_opl": sensor.start_m, "rfilter": {"type": "box"}}},
-        "laser": {"type": "projector", "fov": 0.2, "irradiance": 1.0,
-                  "to_world": t().look_at(origin=list(sensor.laser_origin), target=list(target), up=[0, 0, 1])},
-        **shapes}, optimize=False)
-    _, transient = mi.render(scene, spp=SPP)
-    return np.array(transient)[..., 0]
 
 
 @pytest.mark.slow
@@ -64,7 +36,7 @@ def test_matches_mitransient(tmp_path, spot):
     ds = load_dataset(tmp_path / "ds")
     (_, tr), = ds.iter_transients()
     ours = tr.dense().astype(np.float64)
-    ref = mitransient_cube(ex, target, ds.sensor, tmp_path).astype(np.float64)
+    ref = MitransientRenderer(ex.parts, ds.sensor, tmp_path / "mi").render(target, SPP)
     e, e_ref = ours.sum(-1), ref.sum(-1)
     e[np.unravel_index(np.argmax(e), e.shape)] = 0          # mitransient records no first bounce
     lit = (e > 1e-3 * np.median(e[e > 0])) & (e_ref > 0)
