@@ -116,9 +116,9 @@ def plot(rows, settings, path):
 
 def readme(results) -> str:
     rows = [{**r, "sensor": f"{r['resolution']} x {r['resolution']}"} for r in results["rows"] if r["method"] == "cycles"]
-    table = report.markdown_table(rows, [("sensor", "resolution"), ("wall_s", "wall s", ".0f"), ("cpu_s", "CPU s", ".0f"),
+    table = report.markdown_table(rows, [("sensor", "resolution"), ("wall_s", "wall s", ".1f"), ("cpu_s", "CPU s", ".1f"),
                                          ("peak_rss_mb", "peak memory MB", ".0f"),
-                                         ("rerun_unchanged_wall_s", "re-run, nothing changed (s)", ".0f")])
+                                         ("rerun_unchanged_wall_s", "re-run, nothing changed (s)", ".1f")])
     acc = next((r for r in results["rows"] if r["method"] == "cycles vs analytic"), None)
     if acc:
         table += (f"\n\nAgainst the analytic renderer at {acc['resolution']} x {acc['resolution']} ({acc['spots']} spots): "
