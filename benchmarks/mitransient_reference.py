@@ -25,6 +25,12 @@ INSTALL = 'pip install --target DIR mitransient "mitsuba==3.8.0" and put DIR on 
 VARIANT = "llvm_ad_mono"
 
 
+def installed() -> bool:
+    """mitsuba and mitransient are importable (cheap: nothing is imported)."""
+    import importlib.util
+    return all(importlib.util.find_spec(m) is not None for m in ("mitsuba", "mitransient"))
+
+
 def missing() -> str | None:
     """Why mitransient cannot run here (one line), or None when it can."""
     try:

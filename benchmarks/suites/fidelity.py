@@ -66,14 +66,14 @@ class FidelitySuite(Suite):
 
     def settings(self, quick: bool, overrides=()):
         st = super().settings(quick, overrides)
-        if REFERENCES[st.reference] != self.name:
-            raise SettingsError("reference", f"suite {self.name} does not measure against {st.reference}: "
-                                f"run `python -m benchmarks run {REFERENCES[st.reference]}` (its own results JSON)")
         if st.reference == "mitransient":
             from benchmarks.mitransient_reference import missing
             why = missing()
             if why:
                 raise SettingsError("reference", why)
+        if REFERENCES[st.reference] != self.name:
+            raise SettingsError("reference", f"suite {self.name} does not measure against {st.reference}: "
+                                f"run `python -m benchmarks run {REFERENCES[st.reference]}` (its own results JSON)")
         return st
 
 

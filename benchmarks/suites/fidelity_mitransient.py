@@ -1,6 +1,6 @@
 """Simulator fidelity against mitransient (an independent path tracer), per spot and pooled, optional.
 
-The fidelity suite's run and metrics (benchmarks/suites/fidelity.py, reference='mitransient'); the
+Listed only where mitransient is installed. The fidelity suite's run and metrics (benchmarks/suites/fidelity.py, reference='mitransient'); the
 reference renderer is benchmarks/mitransient_reference.py. Per spot: `reference_seeds` renders of
 `reference_spp` jittered samples per pixel; the reference is their mean, and seed 0 against seed 1
 (at reference_spp each) measures the reference's own noise in the same metrics (ref_self_*). The
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmarks.harness import Suite
+from benchmarks.mitransient_reference import installed
 from benchmarks.suites import fidelity
 
 SPREAD_BINS = 3.0
@@ -121,8 +121,9 @@ def readme(results) -> str:
     return "\n".join(lines)
 
 
-SUITE = fidelity.FidelitySuite(
+#: listed only where mitransient is installed (elsewhere `run fidelity --set reference=mitransient` says how)
+SUITES = [fidelity.FidelitySuite(
     "fidelity_mitransient", __doc__.splitlines()[0], run=fidelity.run, plot=fidelity.plot, readme=readme,
     quick=fidelity.Settings(resolution=64, spots=2, samplings=("default",), reference="mitransient",
                             reference_spp=256),
-    full=fidelity.Settings(spots=4, samplings=("default",), reference="mitransient"))
+    full=fidelity.Settings(spots=4, samplings=("default",), reference="mitransient"))] if installed() else []
