@@ -169,7 +169,8 @@ def plot(rows, settings, path):
                                 (axes[1], "shadow_iou", 0.98, "shadow-mask IoU (mean over spots)")):
         for r in pooled:
             ax.plot(r["wall_s"], r[key], "o")
-            ax.annotate(r["method"], (r["wall_s"], r[key]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+            label = r["method"] if r["scene"] == settings.example else f"{r['method']} ({r['scene']})"   # merged runs
+            ax.annotate(label, (r["wall_s"], r[key]), fontsize=7, xytext=(3, 3), textcoords="offset points")
         ax.axhline(goal, color="r", ls="--", lw=1, label=f"goal {goal}")
         ax.set_xlabel("simulate.py wall s")
         ax.set_title(name, fontsize=9)

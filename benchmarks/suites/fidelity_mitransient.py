@@ -95,12 +95,12 @@ def where_they_differ(cube, ref, m) -> dict:
 
 def readme(results) -> str:
     """Per spot and pooled: the issue's metrics, where they differ, the reference's own noise, both times."""
-    lines = ["| sampling | spot | within +-1 bin | mean bin within +-0.5 | shadow IoU | energy ratio p1 / p50 / p99 | "
+    lines = ["| scene | sampling | spot | within +-1 bin | mean bin within +-0.5 | shadow IoU | energy ratio p1 / p50 / p99 | "
              "misses (wide spread / by dark) | mask-differ coverage p50 | reference seed 0 vs 1 (+-1 bin / IoU) | "
-             "laser constant | simulate wall s | mitransient wall s (spp) |", "|---" * 12 + "|"]
+             "laser constant | simulate wall s | mitransient wall s (spp) |", "|---" * 13 + "|"]
     rows = results["rows"]
     for r in rows:
-        per = [q for q in rows if q["method"] == r["method"] and q["spot"] != "pooled"]
+        per = [q for q in rows if (q["method"], q["scene"]) == (r["method"], r["scene"]) and q["spot"] != "pooled"]
         if r["spot"] == "pooled":
             w = [q["lit_pixels"] for q in per]
             mean_bin = np.average([q["mean_bin_within_half"] for q in per], weights=w)
@@ -115,7 +115,7 @@ def readme(results) -> str:
                      f"{100 * r.get('ref_self_within_1_bin', np.nan):.2f} % / {r.get('ref_self_iou', np.nan):.4f}",
                      f"{r['laser_constant']:.4g}", f"{r['wall_s']:.1f}",
                      f"{r['reference_wall_s']:.1f} ({r['reference_spp']})")
-        lines.append(f"| {r['method']} | {r['spot']} | {100 * r['within_1_bin']:.2f} % | {100 * mean_bin:.2f} % | "
+        lines.append(f"| {r['scene']} | {r['method']} | {r['spot']} | {100 * r['within_1_bin']:.2f} % | {100 * mean_bin:.2f} % | "
                      f"{r['shadow_iou']:.4f} | {r['energy_ratio_p1']:.3f} / {r['energy_ratio_p50']:.3f} / "
                      f"{r['energy_ratio_p99']:.3f} | " + " | ".join(extra) + " |")
     return "\n".join(lines)
@@ -124,6 +124,7 @@ def readme(results) -> str:
 #: listed only where mitransient is installed (elsewhere `run fidelity --set reference=mitransient` says how)
 SUITES = [fidelity.FidelitySuite(
     "fidelity_mitransient", __doc__.splitlines()[0], run=fidelity.run, plot=fidelity.plot, readme=readme,
+    row_id=("method", "scene", "spot"),
     quick=fidelity.Settings(resolution=64, spots=2, samplings=("default",), reference="mitransient",
                             reference_spp=256),
     full=fidelity.Settings(spots=4, samplings=("default",), reference="mitransient"))] if installed() else []
