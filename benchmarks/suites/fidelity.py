@@ -164,18 +164,19 @@ def plot(rows, settings, path):
     import matplotlib.pyplot as plt
 
     pooled = [r for r in rows if r["spot"] == "pooled"]
+    scenes = list(dict.fromkeys(r["scene"] for r in pooled))
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.6))
     for ax, key, goal, name in ((axes[0], "within_1_bin", 0.99, "lit pixels with peak within +-1 bin"),
                                 (axes[1], "shadow_iou", 0.98, "shadow-mask IoU (mean over spots)")):
         for r in pooled:
             ax.plot(r["wall_s"], r[key], "o")
-            label = r["method"] if r["scene"] == settings.example else f"{r['method']} ({r['scene']})"   # merged runs
+            label = r["method"] if len(scenes) == 1 else f"{r['method']} ({r['scene']})"     # runs merged
             ax.annotate(label, (r["wall_s"], r[key]), fontsize=7, xytext=(3, 3), textcoords="offset points")
         ax.axhline(goal, color="r", ls="--", lw=1, label=f"goal {goal}")
         ax.set_xlabel("simulate.py wall s")
         ax.set_title(name, fontsize=9)
         ax.legend(fontsize=7)
-    fig.suptitle(f"{settings.example} {settings.resolution} x {settings.resolution}, {settings.spots} spots, "
+    fig.suptitle(f"{' + '.join(scenes)} {settings.resolution} x {settings.resolution}, {settings.spots} spots, "
                  f"vs {_reference_name(settings)}", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
