@@ -1,8 +1,9 @@
 """Simulator fidelity against mitransient (an independent path tracer), per spot and pooled, optional.
 
-Listed only where mitransient is installed. The fidelity suite's run and metrics (benchmarks/suites/fidelity.py, reference='mitransient'); the
-reference renderer is benchmarks/mitransient_reference.py. Per spot: `reference_seeds` renders of
-`reference_spp` jittered samples per pixel; the reference is their mean, and seed 0 against seed 1
+Listed only where mitransient is installed. The fidelity suite's run and metrics
+(benchmarks/suites/fidelity.py, reference='mitransient'); the reference renderer is
+benchmarks/mitransient_reference.py. Per spot: `reference_seeds` renders of `reference_spp`
+jittered samples per pixel; the reference is their mean, and seed 0 against seed 1
 (at reference_spp each) measures the reference's own noise in the same metrics (ref_self_*). The
 histogram peak is ill-posed where a pixel's path spreads over several bins (a plateau: noise picks
 the peak), so mean_bin_within_half (energy-weighted mean bin within +-0.5 bin) is given beside it.
@@ -61,7 +62,8 @@ def compare_to_mitransient(cube: np.ndarray, ref: dict) -> tuple[dict, dict]:
     scale = float(e[both].sum() / e_ref[both].sum())
     rc = ref["cube"] * scale
     m = fidelity.compare(cube, rc, fb)
-    extra = {"reference_spp": ref["spp"], "reference_wall_s": round(ref["wall_s"], 2), "reference_cpu_s": round(ref["cpu_s"], 2),
+    extra = {"reference_spp": ref["spp"], "reference_wall_s": round(ref["wall_s"], 2),
+             "reference_cpu_s": round(ref["cpu_s"], 2),
              "scale": scale, "laser_constant": scale * ref["cos_in"] / ref["distance_m"] ** 2,
              **({"ref_self_within_1_bin": ref["noise"]["within_1_bin"], "ref_self_iou": ref["noise"]["shadow_iou"]}
                 if ref["noise"] else {}),
@@ -95,7 +97,8 @@ def where_they_differ(cube, ref, m) -> dict:
 
 def readme(results) -> str:
     """Per spot and pooled: the issue's metrics, where they differ, the reference's own noise, both times."""
-    lines = ["| scene | sampling | spot | within +-1 bin | mean bin within +-0.5 | shadow IoU | energy ratio p1 / p50 / p99 | "
+    lines = ["| scene | sampling | spot | within +-1 bin | mean bin within +-0.5 | shadow IoU | "
+             "energy ratio p1 / p50 / p99 | "
              "misses (wide spread / by dark) | mask-differ coverage p50 | reference seed 0 vs 1 (+-1 bin / IoU) | "
              "laser constant | simulate wall s | mitransient wall s (spp) |", "|---" * 13 + "|"]
     rows = results["rows"]
@@ -115,7 +118,8 @@ def readme(results) -> str:
                      f"{100 * r.get('ref_self_within_1_bin', np.nan):.2f} % / {r.get('ref_self_iou', np.nan):.4f}",
                      f"{r['laser_constant']:.4g}", f"{r['wall_s']:.1f}",
                      f"{r['reference_wall_s']:.1f} ({r['reference_spp']})")
-        lines.append(f"| {r['scene']} | {r['method']} | {r['spot']} | {100 * r['within_1_bin']:.2f} % | {100 * mean_bin:.2f} % | "
+        lines.append(f"| {r['scene']} | {r['method']} | {r['spot']} | {100 * r['within_1_bin']:.2f} % | "
+                     f"{100 * mean_bin:.2f} % | "
                      f"{r['shadow_iou']:.4f} | {r['energy_ratio_p1']:.3f} / {r['energy_ratio_p50']:.3f} / "
                      f"{r['energy_ratio_p99']:.3f} | " + " | ".join(extra) + " |")
     return "\n".join(lines)
