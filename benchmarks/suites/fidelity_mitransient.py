@@ -130,5 +130,5 @@ SUITES = [fidelity.FidelitySuite(
     "fidelity_mitransient", __doc__.splitlines()[0], run=fidelity.run, plot=fidelity.plot, readme=readme,
     row_id=("method", "scene", "spot"),
     quick=fidelity.Settings(resolution=64, spots=2, samplings=("default",), reference="mitransient",
-                            reference_spp=256),
+                            reference_spp=1024),        # fewer spp: the peak test measures the noise
     full=fidelity.Settings(spots=4, samplings=("default",), reference="mitransient"))] if installed() else []
