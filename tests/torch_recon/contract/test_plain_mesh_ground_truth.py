@@ -19,21 +19,12 @@ from torch_recon.contract.frames import look_at_c2w, paper_test_view_cameras  # 
 from torch_recon.contract.plain_mesh import PlainMesh  # noqa: E402
 from torch_recon.contract.test_views import (SceneViewSettings, check_test_views, free_space,  # noqa: E402
                                              scene_test_view_cameras)
-
-
-def _triangles(ex):
-    verts, faces, owner, off = [], [], [], 0
-    for i, p in enumerate(ex.parts):
-        verts.append(p.vertices)
-        faces.append(p.faces + off)
-        owner.append(np.full(len(p.faces), i))
-        off += len(p.vertices)
-    return np.concatenate(verts), np.concatenate(faces), np.concatenate(owner), [p.name for p in ex.parts]
+from tests.support.example_triangles import example_triangles  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def cave():
-    v, f, owner, names = _triangles(scenes.cave_chair())
+    v, f, owner, names = example_triangles(scenes.cave_chair())
     return PlainMesh(v, f), trimesh.Trimesh(v, f, process=False)
 
 
@@ -55,7 +46,7 @@ def test_ply_file_and_geometry_equal_trimesh(cave, tmp_path):
 
 
 def test_compact_submesh_equals_remove_unreferenced_vertices():
-    v, f, owner, names = _triangles(scenes.thin_structures())
+    v, f, owner, names = example_triangles(scenes.thin_structures())
     sel = owner % 3 == 1                       # faces of every third part: most vertices unused
     ref = trimesh.Trimesh(v, f[sel], process=False).copy()
     ref.remove_unreferenced_vertices()
@@ -86,7 +77,7 @@ def test_first_hits_equal_trimesh_embree(cave):
 
 def test_test_view_placement_equals_trimesh():
     ex = scenes.thin_structures()
-    v, f, owner, names = tri = _triangles(ex)
+    v, f, owner, names = tri = example_triangles(ex)
     objects = ground_truth.object_meshes(*tri, labelled=ex.objects)
     room = ground_truth.room_mesh(tri, objects)
     tm_objects = [trimesh.Trimesh(m.vertices, m.faces, process=False) for m, _ in objects.values()]

@@ -10,6 +10,8 @@ from torch_recon.contract import scenes
 from torch_recon.contract.ground_truth import object_meshes, room_mesh
 from torch_recon.contract.scene_objects import label_parts, split_mesh_objects
 
+from tests.support.example_triangles import example_triangles
+
 
 def _bounds(ex):
     return {p.name: (p.vertices.min(axis=0), p.vertices.max(axis=0)) for p in ex.parts}
@@ -37,13 +39,7 @@ def test_labels_win_and_every_labelled_example_names_real_parts():
 
 def test_object_meshes_and_room_from_triangles():
     ex = scenes.thin_structures()
-    verts, faces, owner, off = [], [], [], 0
-    for i, p in enumerate(ex.parts):
-        verts.append(p.vertices)
-        faces.append(p.faces + off)
-        owner.append(np.full(len(p.faces), i))
-        off += len(p.vertices)
-    tri = (np.concatenate(verts), np.concatenate(faces), np.concatenate(owner), [p.name for p in ex.parts])
+    tri = example_triangles(ex)
     objs = object_meshes(*tri, labelled=ex.objects)
     assert sorted(objs) == ["lamp", "table"]
     lamp, parts = objs["lamp"]
