@@ -84,7 +84,7 @@ class FastConfig:
                                       # and floor ramps (|g| ~ 5e-5) stay while the chair's (4e-4 - 1e-3) train.
                                       # Cave-chair 128, 100 steps: 1e-8 (torch default) depth L1 0.075 m, 1e-4
                                       # 0.058, 1e-3 0.055 (hidden R@2cm 0.76 -> 0.83), 1e-2 0.061 (F@2cm 0.78)
-    # --- thin parts in the start field (helper thin, session 7; recon/cone_carving.py) ---
+    # --- thin parts in the start field (session 7; recon/cone_carving.py, recon/hull_trim.py) ---
     footprint_voxels: float = 0.0     # > 0: a line-carved voxel that shadowed rays cross stays occupied unless the
                                       # camera's or a spot's rays within this many voxels of its centre show it free
     footprint_views: int = 1          # ... free from at least this many viewpoints (sensor, spots): a thin part's
@@ -100,7 +100,7 @@ class FastConfig:
                                          # more than twice this behind it
     plane_free_band_voxels: float = 2.0  # the mesh keeps faces facing completed empty space this close
                                          # to a completed plane
-    # --- visible surfaces of the mesh (helper surface, session 7) ---
+    # --- visible surfaces of the mesh (session 7) ---
     mesh_front_of_visible: bool = True  # the mesh also keeps faces facing the voxels just in front of a measured
                                         # visible point (along its normal): cave-chair start field, sensor
                                         # view pixels the mesh misses (pin-holes at the grazing ceiling next
