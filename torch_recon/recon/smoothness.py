@@ -61,28 +61,31 @@ class NormalConsistencyPrior:
                 pairs_a.append(torch.nonzero(keep).reshape(-1))
                 pairs_b.append(j[keep])
             self.pair_a, self.pair_b = torch.cat(pairs_a), torch.cat(pairs_b)
-            # one gather per step: the cells' 8 corners, as positions into that gathered set
+            # the cells' 8 corners (flat voxel indices, z y x bit order) and the trilinear gradient as a matrix
             sx, sy, sz = self.strides
-            offs = torch.tensor([k * sz + j * sy + i * sx for k in (0, 1) for j in (0, 1) for i in (0, 1)], device=dev)
-            self.gathered, pos = torch.unique(self.cells[:, None] + offs, return_inverse=True)
-            self.corner = pos.reshape(-1).contiguous()      # (C * 8), corner order (z, y, x) bits
+            bits = [(k, j, i) for k in (0, 1) for j in (0, 1) for i in (0, 1)]
+            offs = torch.tensor([k * sz + j * sy + i * sx for k, j, i in bits], device=dev)
+            self.corners = (offs[:, None] + self.cells[None, :]).reshape(-1).contiguous()    # (8, C) flat
+            self.diff = torch.tensor([[(2 * i - 1) / 4, (2 * j - 1) / 4, (2 * k - 1) / 4] for k, j, i in bits],
+                                     dtype=raw.dtype, device=dev).T.contiguous()    # (3, 8): mean of 4 edges per axis
 
     @property
     def band_size(self) -> int:
         return int(self.cells.numel())
 
     def normals(self, raw: torch.Tensor) -> torch.Tensor:
-        """Unit normals (C, 3: x, y, z) of the surface cells (towards higher density), differentiable."""
-        v = raw.reshape(-1).index_select(0, self.gathered).index_select(0, self.corner).view(-1, 2, 2, 2)
-        g = torch.stack([(v[..., 1] - v[..., 0]).mean((1, 2)), (v[:, :, 1] - v[:, :, 0]).mean((1, 2)),
-                         (v[:, 1] - v[:, 0]).mean((1, 2))], -1)
-        return g / (g.square().sum(-1, keepdim=True) + MIN_GRADIENT_PER_VOXEL ** 2).sqrt()
+        """Unit normals (3: x, y, z; C) of the surface cells (towards higher density), differentiable.
+        Laid out (3, C) so that the sums over x, y, z are adds of contiguous rows (faster on a CPU)."""
+        g = self.diff @ raw.reshape(-1).index_select(0, self.corners).view(8, -1)
+        return g / (g.square().sum(0) + MIN_GRADIENT_PER_VOXEL ** 2).sqrt()
 
     def __call__(self, raw: torch.Tensor) -> torch.Tensor:
         if self.pair_a.numel() == 0:
             return raw.new_zeros(())
         n = self.normals(raw)
-        na, nb = n.index_select(0, self.pair_a), n.index_select(0, self.pair_b)
+        nn = n.square().sum(0)
+        na_nb = (n.index_select(1, self.pair_a) * n.index_select(1, self.pair_b)).sum(0)
+        sq_a, sq_b = nn.index_select(0, self.pair_a), nn.index_select(0, self.pair_b)
         with torch.no_grad():      # edges, corners, thin slabs and legs: normals far apart, not smoothed
-            similar = (na * nb).sum(-1) > self.cos_min * (na.norm(dim=-1) * nb.norm(dim=-1))
-        return ((na - nb).square().sum(-1) * similar).sum()
+            similar = na_nb > self.cos_min * (sq_a * sq_b).sqrt()
+        return ((sq_a + sq_b - 2.0 * na_nb) * similar).sum()       # |n_a - n_b|^2

@@ -17,6 +17,8 @@ from torch_recon.recon.models import FastModel
 from torch_recon.recon.smoothness import NormalConsistencyPrior
 
 SLOPE, LEVEL = 4.0, 1.0
+#: the default weight, or where the prior is off by default the one measured in docs/reconstruction.md
+WEIGHT = FastConfig().normal_weight or 0.01
 
 
 def _tilted_ramp(n=16, tilt_deg=20.0, offset=0.37):
@@ -45,7 +47,7 @@ def test_a_plane_costs_nothing_and_a_spike_does():
     assert float(NormalConsistencyPrior(spiked, LEVEL)(spiked)) > 0.1
 
 
-@pytest.mark.parametrize("weight", [0.0, FastConfig().normal_weight or 0.03])
+@pytest.mark.parametrize("weight", [0.0, WEIGHT])
 def test_adam_with_its_large_epsilon_smooths_a_spike_only_with_the_prior(weight):
     fc = FastConfig()
     raw0 = _tilted_ramp(tilt_deg=0.0)
@@ -54,14 +56,14 @@ def test_adam_with_its_large_epsilon_smooths_a_spike_only_with_the_prior(weight)
     raw = torch.nn.Parameter(raw0.clone())
     opt = torch.optim.Adam([raw], lr=fc.lr, eps=fc.adam_eps)
     prior = NormalConsistencyPrior(raw.detach(), LEVEL)
-    for _ in range(20):
+    for _ in range(40):
         opt.zero_grad()
         loss = weight * prior(raw) + 0.0 * raw.sum()
         loss.backward()
         opt.step()
     before, after = _spike_excess(raw0, v), _spike_excess(raw.detach(), v)
-    if weight > 0:
-        assert after < 0.5 * before
+    if weight > 0:      # a spike of 2 raw units has a prior gradient of ~0.3 x weight, above eps 1e-3
+        assert after < 0.6 * before
     else:
         assert after == pytest.approx(before)
 
@@ -74,7 +76,7 @@ def test_the_fast_model_smooths_a_floor_spike_with_the_prior_and_keeps_it_withou
     meas = box_floor_measurements(32)
     data = build_ray_data(meas)
     excess = {}
-    for weight in (0.0, FastConfig().normal_weight or 0.03):
+    for weight in (0.0, WEIGHT):
         cfg = small_config(steps=20)
         cfg.fast.normal_weight = weight
         model = FastModel(data, cfg, _meta(meas))
@@ -95,7 +97,6 @@ def test_the_fast_model_smooths_a_floor_spike_with_the_prior_and_keeps_it_withou
             model.optimizer.step()
         excess[weight] = _spike_excess(model.grid.raw.detach(), (iz, iy, ix)) / start
     without, with_prior = excess.values()
-    print(excess)
     assert without > 0.8
     assert with_prior < 0.5
 
