@@ -74,8 +74,6 @@ class FastConfig:
     normal_weight: float = 0.0        # surface prior (recon/smoothness.py): this x sum over neighbouring surface-band
                                       # voxel pairs of |n_a - n_b|^2 (n: unit gradient of the raw density)
     normal_max_angle_deg: float = 30.0  # ... pairs whose normals differ by more (edges, thin parts) are not smoothed
-    normal_keep_measured_empty: bool = True  # ... and it never raises voxels a measurement showed empty (known free,
-                                             # just in front of a visible point): room edges keep their faces
     lr: float = 0.05                  # Adam on raw density; with the ramp at 4 per voxel the surface moves
                                       # at most lr / 4 voxel a step (0.2 with the old slope 16, same motion).
                                       # Session 2 (slope 16): 0.01 left the initial field

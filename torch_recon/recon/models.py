@@ -71,7 +71,6 @@ class FastModel(ReconstructionModel):
         self.level = 0 if self.fc.coarse_fraction > 0 and self.fc.coarse_resolution < self.fc.resolution else 1
         self.grid, self.free = self._initial(self.fc.coarse_resolution if self.level == 0 else self.fc.resolution)
         self._hook = None
-        self._measured_empty = None     # the normal prior's one-sided voxels, from the start field
         self._set_measured_mask(self.grid.raw)
         self.occupancy = None
         self.refresh_occupancy()
@@ -166,22 +165,9 @@ class FastModel(ReconstructionModel):
     def normal_prior(self) -> NormalConsistencyPrior:
         """The surface-normal prior on the current surface band (rebuilt with the occupancy)."""
         if self._normal_prior is None:
-            slope = max(self.fc.surface_slope, 1.0)
-            iso = surface_offset(self.grid.density_scale, self.grid.box.voxel, slope)
-            if self._measured_empty is None or self._measured_empty.shape != self.grid.raw.shape:
-                self._measured_empty = self._empty_in_start(iso - 0.5 * slope) if self.fc.normal_keep_measured_empty else None
-            self._normal_prior = NormalConsistencyPrior(self.grid.raw, iso, self.fc.normal_max_angle_deg,
-                                                        self._measured_empty)
+            iso = surface_offset(self.grid.density_scale, self.grid.box.voxel, max(self.fc.surface_slope, 1.0))
+            self._normal_prior = NormalConsistencyPrior(self.grid.raw, iso, self.fc.normal_max_angle_deg)
         return self._normal_prior
-
-    def _empty_in_start(self, below: float) -> torch.Tensor:
-        """Voxels (raw layout) a measurement shows empty in the current field: known free space, and the
-        space just in front of the measured visible surface where raw is below `below`."""
-        box = self.grid.box
-        raw = self.grid.raw.detach()[0, 0].permute(2, 1, 0)
-        front = in_front_of_visible_surface(visible_surface(self.data, box), box, (raw < below).cpu())
-        free = self.free if tuple(self.free.shape) == tuple(box.shape) else torch.zeros_like(front)
-        return (front.to(raw.device) | free.to(raw.device)).permute(2, 1, 0)[None, None].contiguous()
 
     def before_step(self, step: int, total: int) -> bool:
         """Coarse -> fine switch and occupancy refresh; True when the optimiser was rebuilt."""

@@ -38,11 +38,8 @@ class NormalConsistencyPrior:
     voxel inside the solid; central differences at voxels there lost the tilt (measured on a tilted ramp:
     up to the full tilt) and the prior rippled flat walls."""
 
-    def __init__(self, raw: torch.Tensor, level: float, max_angle_deg: float = 30.0,
-                 measured_empty: torch.Tensor | None = None):
-        """`raw`: the grid's raw density (1, 1, nz, ny, nx); `level`: its surface value; `measured_empty`
-        (bool, raw's shape): voxels the prior may lower but never raise (space a measurement showed empty:
-        otherwise the prior rounds the room's concave edges into it and the mesh loses those faces)."""
+    def __init__(self, raw: torch.Tensor, level: float, max_angle_deg: float = 30.0):
+        """`raw`: the grid's raw density (1, 1, nz, ny, nx); `level`: its surface value."""
         _, _, nz, ny, nx = raw.shape
         self.strides = (1, nx, nx * ny)          # flat-index step along x, y, z
         self.cos_min = math.cos(math.radians(max_angle_deg))
@@ -71,7 +68,6 @@ class NormalConsistencyPrior:
             self.corners = (offs[:, None] + self.cells[None, :]).reshape(-1).contiguous()    # (8, C) flat
             self.diff = torch.tensor([[(2 * i - 1) / 4, (2 * j - 1) / 4, (2 * k - 1) / 4] for k, j, i in bits],
                                      dtype=raw.dtype, device=dev).T.contiguous()    # (3, 8): mean of 4 edges per axis
-            self.no_raise = None if measured_empty is None else measured_empty.reshape(-1)[self.corners].view(8, -1)
 
     @property
     def band_size(self) -> int:
@@ -80,11 +76,7 @@ class NormalConsistencyPrior:
     def normals(self, raw: torch.Tensor) -> torch.Tensor:
         """Unit normals (3: x, y, z; C) of the surface cells (towards higher density), differentiable.
         Laid out (3, C) so that the sums over x, y, z are adds of contiguous rows (faster on a CPU)."""
-        v = raw.reshape(-1).index_select(0, self.corners).view(8, -1)
-        if self.no_raise is not None and v.requires_grad:     # a negative gradient raises the voxel
-            keep = self.no_raise
-            v.register_hook(lambda grad: grad.masked_fill(keep & (grad < 0), 0.0))
-        g = self.diff @ v
+        g = self.diff @ raw.reshape(-1).index_select(0, self.corners).view(8, -1)
         return g / (g.square().sum(0) + MIN_GRADIENT_PER_VOXEL ** 2).sqrt()
 
     def __call__(self, raw: torch.Tensor) -> torch.Tensor:

@@ -72,6 +72,10 @@ def _meta(m):
     return {"camera_to_world": np.asarray(m.camera_to_world), "fov_rad": m.fov_rad, "fov_axis": m.fov_axis}
 
 
+def _meta(m):
+    return {"camera_to_world": np.asarray(m.camera_to_world), "fov_rad": m.fov_rad, "fov_axis": m.fov_axis}
+
+
 def test_measured_empty_voxels_are_lowered_but_never_raised():
     gen = torch.Generator().manual_seed(0)
     raw0 = _tilted_ramp(tilt_deg=10.0) + 0.8 * torch.randn(1, 1, 16, 16, 16, generator=gen)   # a lumpy surface
