@@ -71,6 +71,7 @@ class FastModel(ReconstructionModel):
         self.level = 0 if self.fc.coarse_fraction > 0 and self.fc.coarse_resolution < self.fc.resolution else 1
         self.grid, self.free = self._initial(self.fc.coarse_resolution if self.level == 0 else self.fc.resolution)
         self._hook = None
+        self._normal_cells = None
         self._set_measured_mask(self.grid.raw)
         self.occupancy = None
         self.refresh_occupancy()
@@ -166,7 +167,8 @@ class FastModel(ReconstructionModel):
         """The surface-normal prior on the current surface band (rebuilt with the occupancy)."""
         if self._normal_prior is None:
             iso = surface_offset(self.grid.density_scale, self.grid.box.voxel, max(self.fc.surface_slope, 1.0))
-            self._normal_prior = NormalConsistencyPrior(self.grid.raw, iso, self.fc.normal_max_angle_deg)
+            cells, self._normal_cells = self._normal_cells, None     # from a checkpoint: the same cells as before
+            self._normal_prior = NormalConsistencyPrior(self.grid.raw, iso, self.fc.normal_max_angle_deg, cells)
         return self._normal_prior
 
     def before_step(self, step: int, total: int) -> bool:
@@ -251,7 +253,8 @@ class FastModel(ReconstructionModel):
         return {"level": self.level, "raw": self.grid.raw.detach().clone(),
                 "bbox_min": self.grid.box.bbox_min.cpu(), "voxel": self.grid.box.voxel,
                 "shape": list(self.grid.box.shape), "free": self.free.clone(),
-                "trainable": self.trainable, "raw_start": self.raw_start, "occupancy": self.occupancy.clone(), "tau_step": self.tau_step.clone(), "optimizer": self.optimizer.state_dict()}
+                "trainable": self.trainable, "raw_start": self.raw_start, "occupancy": self.occupancy.clone(), "tau_step": self.tau_step.clone(), "optimizer": self.optimizer.state_dict(),
+                "normal_cells": None if self._normal_prior is None else self._normal_prior.cells.clone()}
 
     def load_state_dict(self, st):
         self.level = int(st["level"])
@@ -264,7 +267,8 @@ class FastModel(ReconstructionModel):
         r0 = st.get("raw_start")
         self.raw_start = None if r0 is None else r0.to(self.device)
         self.occupancy = st["occupancy"].to(self.device)
-        self._normal_prior = None
+        self._normal_prior = None       # rebuilt on the surface cells the run had (resume == uninterrupted)
+        self._normal_cells = st.get("normal_cells")
         self.tau_step = st["tau_step"].to(self.device)
         self.make_optimizer()
         self.optimizer.load_state_dict(st["optimizer"])

@@ -28,6 +28,18 @@ import torch
 MIN_GRADIENT_PER_VOXEL = 0.5
 
 
+def surface_cells(raw: torch.Tensor, level: float) -> torch.Tensor:
+    """Flat indices (lowest corner) of the cells of `raw` (1, 1, nz, ny, nx) whose 8 corners straddle `level`."""
+    with torch.no_grad():
+        r = raw[0, 0]
+        nz, ny, nx = r.shape
+        corners = torch.stack([r[k:nz - 1 + k, j:ny - 1 + j, i:nx - 1 + i]
+                               for k in (0, 1) for j in (0, 1) for i in (0, 1)])
+        surface = torch.zeros_like(r, dtype=torch.bool)
+        surface[:-1, :-1, :-1] = (corners.amin(0) < level) & (corners.amax(0) >= level)
+        return torch.nonzero(surface.reshape(-1)).reshape(-1)
+
+
 class NormalConsistencyPrior:
     """sum over neighbouring surface cells (a, b) with angle(n_a, n_b) < max_angle of |n_a - n_b|^2.
 
@@ -38,25 +50,22 @@ class NormalConsistencyPrior:
     voxel inside the solid; central differences at voxels there lost the tilt (measured on a tilted ramp:
     up to the full tilt) and the prior rippled flat walls."""
 
-    def __init__(self, raw: torch.Tensor, level: float, max_angle_deg: float = 30.0):
-        """`raw`: the grid's raw density (1, 1, nz, ny, nx); `level`: its surface value."""
+    def __init__(self, raw: torch.Tensor, level: float | None, max_angle_deg: float = 30.0,
+                 cells: torch.Tensor | None = None):
+        """`raw`: the grid's raw density (1, 1, nz, ny, nx); `level`: its surface value; or `cells` (the
+        `cells` of an earlier prior on this grid, e.g. from a checkpoint) instead of finding them in `raw`."""
         _, _, nz, ny, nx = raw.shape
         self.strides = (1, nx, nx * ny)          # flat-index step along x, y, z
         self.cos_min = math.cos(math.radians(max_angle_deg))
         dev = raw.device
         with torch.no_grad():
-            r = raw[0, 0]
-            corners = [r[k:nz - 1 + k, j:ny - 1 + j, i:nx - 1 + i] for k in (0, 1) for j in (0, 1) for i in (0, 1)]
-            lo = torch.stack(corners).amin(0)
-            hi = torch.stack(corners).amax(0)
-            surface = torch.zeros_like(r, dtype=torch.bool)          # indexed by the cell's lowest corner
-            surface[:-1, :-1, :-1] = (lo < level) & (hi >= level)
-            self.cells = torch.nonzero(surface.reshape(-1)).reshape(-1)
-            lookup = torch.full((surface.numel(),), -1, dtype=torch.long, device=dev)
+            self.cells = surface_cells(raw, level) if cells is None else cells.to(dev)
+            n_vox = raw.numel()
+            lookup = torch.full((n_vox,), -1, dtype=torch.long, device=dev)
             lookup[self.cells] = torch.arange(self.cells.numel(), device=dev)
             pairs_a, pairs_b = [], []
             for st in self.strides:         # each pair once: a cell and its +x, +y, +z neighbour
-                j = lookup[(self.cells + st).clamp(max=surface.numel() - 1)]
+                j = lookup[(self.cells + st).clamp(max=n_vox - 1)]
                 keep = j >= 0
                 pairs_a.append(torch.nonzero(keep).reshape(-1))
                 pairs_b.append(j[keep])
