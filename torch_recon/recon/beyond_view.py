@@ -81,3 +81,40 @@ def lit_side_of_hull(data: RayData, box: GridBox, hull: torch.Tensor, spots: tor
     return (_dilate_cube(out.reshape(box.shape).float(), 1) > 0) & ~hull
 
 
+
+
+def first_blockers(data: RayData, box: GridBox, hull: torch.Tensor, spots: torch.Tensor, off: float, step: float,
+                   chunk_samples: int = 1 << 20) -> torch.Tensor:
+    """Voxels of `hull` (bool (nx, ny, nz)) in the first run of hull voxels that a shadowed segment of the `spots`
+    meets coming from its spot: the light stopped there; hull further along the segment (past free space)
+    is not needed by it."""
+    from .init import _marching_cells, _segments
+
+    out = torch.zeros(int(np.prod(box.shape)), dtype=torch.bool, device=hull.device)
+    seg = _segments(data, data.shadowed & torch.isin(data.pair_spot, spots), off)
+    if seg[0].shape[0] == 0:
+        return out.reshape(box.shape)
+    flat_hull = hull.reshape(-1)
+    for _, flat, keep in _marching_cells(box, *seg, step, chunk_samples):   # samples ordered from x to the spot
+        flat = flat.where(keep, 0.0).long()
+        inside = keep & flat_hull[flat]
+        order = torch.arange(flat.shape[1], device=flat.device).expand_as(flat)
+        last = torch.where(inside, order, torch.full_like(order, -1)).amax(1, keepdim=True)
+        gap = torch.where(keep & ~inside & (order < last), order, torch.full_like(order, -1)).amax(1, keepdim=True)
+        run = inside & (order > gap) & (order <= last)
+        out[flat[run]] = True
+    return out.reshape(box.shape)
+
+
+def unneeded_beside_view(data: RayData, box: GridBox, free: torch.Tensor, hull: torch.Tensor, spots: torch.Tensor,
+                         off: float, step: float, depth_voxels: int) -> torch.Tensor:
+    """Hull voxels outside the camera's view (bool (nx, ny, nz)) to empty: in no shadowed segment's first run of
+    hull from its spot (`first_blockers`), reachable from `free` through such voxels within `depth_voxels`
+    (`hull_trim.unneeded_hull`). hull: the occupied voxels of the measured space (in and beside the view)."""
+    from .hull_trim import unneeded_hull
+
+    beside = hull & ~in_camera_view(data, box.centres()).to(hull.device)
+    if len(spots) == 0 or depth_voxels <= 0 or not bool(beside.any()):
+        return torch.zeros_like(free)
+    needed = first_blockers(data, box, hull, spots, off, step)
+    return unneeded_hull(free, beside, needed.long(), torch.zeros_like(free), depth_voxels)
