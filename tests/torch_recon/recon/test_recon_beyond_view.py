@@ -9,7 +9,8 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from torch_recon.contract.frames import pixel_rays, project_points  # noqa: E402
-from torch_recon.recon.beyond_view import in_camera_view, lit_side_of_hull, out_of_view_spots  # noqa: E402
+from torch_recon.recon.beyond_view import (  # noqa: E402
+    first_blockers, in_camera_view, lit_side_of_hull, out_of_view_spots, unneeded_beside_view)
 from torch_recon.recon.data import RayData  # noqa: E402
 from torch_recon.recon.fields import GridBox  # noqa: E402
 
@@ -77,6 +78,32 @@ def test_the_lit_side_of_the_hull_faces_the_spot_not_the_shadowed_point():
     assert not bool(lit_side_of_hull(data, box, hull, torch.tensor([1]), 0.05, 0.05).any())
     data.shadowed[:] = False
     assert not bool(lit_side_of_hull(data, box, hull, torch.tensor([0]), 0.05, 0.05).any())
+
+
+def test_hull_past_free_space_from_the_spot_is_not_needed_and_is_emptied():
+    # along x (left, outside the box) -> spot (right): a lump at x 0.2-0.4, free space, the blocker at x 0.6-0.8;
+    # the camera at x = -1 looks along -x, away from all of it
+    box = GridBox([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], 10)
+    hull = torch.zeros(box.shape, dtype=torch.bool)
+    hull[2:4, 4:7, 4:7] = True          # the lump past the gap
+    hull[6:8, 3:8, 3:8] = True          # the blocker the light stops at
+    free = ~hull
+    c = np.array([-1.0, 0.55, 0.55])
+    spot = np.array([0.95, 0.55, 0.55])
+    h = w = 4
+    c2w = np.eye(4)
+    c2w[:3, :3], c2w[:3, 3] = [[0, 0, 1], [1, 0, 0], [0, 1, 0]], c
+    _, dirs = pixel_rays(c2w, w, h, 0.5)
+    pd = dirs.reshape(-1, 3)
+    depth = np.ones(h * w)              # the shadowed points x = c + d u lie at x = -2, the segments cross the box
+    data = _data(c, pd, depth, [spot], [5, 6], [0, 0], [True, True], h, w)
+    assert not bool(in_camera_view(data, box.centres()).any())
+    need = first_blockers(data, box, hull, torch.tensor([0]), off=0.05, step=0.05)
+    assert bool(need[6:8, 5, 5].all()) and not bool(need[2:4].any())
+    gone = unneeded_beside_view(data, box, free, hull, torch.tensor([0]), 0.05, 0.05, depth_voxels=8)
+    assert bool(gone[2:4, 4:7, 4:7].all())                  # the lump: no light stopped there
+    assert not bool(gone[6:8, 5, 5].any())                  # the blocker stays
+    assert not bool(gone[~hull].any())
 
 
 def test_the_start_reports_the_column_faces_towards_the_out_of_view_spots(tmp_path):
