@@ -7,7 +7,10 @@ empty. The mesh exporter reports only faces toward known free space, so the hull
 completed space were dropped as a cut at the edge of the measured space, and test cameras beside an object
 outside the view looked through it (outside-fov: the column's faces toward the sensor).
 But where a shadowed segment leaves the hull towards its spot, light from the spot travelled up to the hull:
-that is the lit side of the shadow caster, and its faces are reported (`lit_side_of_hull`).
+that is the lit side of the shadow caster, and its faces are reported (`lit_side_of_hull`). And that light
+stopped at the first run of hull it met: hull further along the segment, past free space, is not needed by it;
+hull beside the view that no shadowed segment needs is emptied from free space inward (`unneeded_beside_view`:
+outside-fov's slab of shadow volume over the unseen floor). Measured in docs/reconstruction.md ("Beside the view").
 """
 
 from __future__ import annotations
