@@ -73,8 +73,8 @@ class FastConfig:
     freeze_dilate_voxels: int = 1     # the frozen surface band reaches this many voxels beyond the ramp
     normal_weight: float = 0.01       # surface prior (recon/smoothness.py): this x sum over neighbouring surface
                                       # cells of |n_a - n_b|^2 (n: unit gradient of raw); a sum, so a lump's gradient
-                                      # (~0.3 x weight for 2 raw units) passes Adam's eps. 4 scenes 128 px: floor
-                                      # tilt p90 4.0-4.7 -> 2.3-3.2 deg, F@2cm -0.008..+0.038, L1 -1.6..+2.0 mm; 0: off
+                                      # (~0.3 x weight for 2 raw units) passes Adam's eps. 5 scenes 128 px: floor
+                                      # tilt p90 3.9-4.7 -> 2.3-3.2 deg, F@2cm -0.008..+0.038, L1 -1.6..+2.0 mm; 0: off
     normal_max_angle_deg: float = 30.0  # ... pairs whose normals differ by more (edges, thin parts) are not smoothed
     lr: float = 0.05                  # Adam on raw density; with the ramp at 4 per voxel the surface moves
                                       # at most lr / 4 voxel a step (0.2 with the old slope 16, same motion).
