@@ -75,9 +75,7 @@ def test_anchor_prior_pulls_measured_voxels_back_to_the_start(meas):
         r = fit(meas, config=cfg)
         measured = (raw0 > cfg.fast.raw_free + 1e-3) & (raw0 < cfg.fast.raw_occupied - 1e-3)
         moved.append(float((r.model.grid.raw.detach() - raw0)[measured].abs().mean()))
-    # 0.6 measured (0.141 / 0.084 raw units); the old 0.5 margin came from the removed tv_weight term, whose
-    # tiny gradient on every voxel Adam turned into full lr steps at eps 1e-8
-    assert moved[1] < 0.7 * moved[0], moved
+    assert moved[1] < 0.5 * moved[0], moved     # measured 0.045 (0.149 -> 0.0067 raw units)
 
 
 def test_trained_floor_stays_flat_when_frozen(meas, tmp_path):
