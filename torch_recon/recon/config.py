@@ -89,6 +89,11 @@ class FastConfig:
                                       # camera's or a spot's rays within this many voxels of its centre show it free
     footprint_views: int = 1          # ... free from at least this many viewpoints (sensor, spots): a thin part's
                                       # shadow a spot's pixels miss leaves it free from that spot alone
+    nearest_free: bool = True         # camera rays are free only up to the pixel's nearest return (earliest
+                                      # significant two-bounce return, preprocess): a part under a pixel wide in
+                                      # front of the floor is not carved by the pixel that sees past it
+    nearest_surface: bool = True      # ... and that nearest surface is occupied where the strongest return lies
+                                      # more than a voxel behind it (the thin part itself)
     trim_hull_voxels: int = 8         # > 0: hull voxels no shadowed ray crosses, reachable from measured free space
                                       # through such voxels within this many voxels, start empty (recon/hull_trim.py).
                                       # Cave-chair trained: spurious 1.05 -> 0.49 %, chair unchanged; 0: old start

@@ -124,6 +124,8 @@ def _segments(data: RayData, mask, off):
 RESTORED = 4
 #: evidence label of a line-carved voxel that the rays' footprints do not show free (cone_carving.py)
 KEPT = 5
+#: evidence label of the nearest surface of a pixel whose strongest return lies behind (a part under a pixel wide)
+NEAREST = 6
 
 
 def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count, origins, dirs, near, far, step,
@@ -180,7 +182,7 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
                   secondary_offset_m: float = 0.0, step_voxels: float = 0.5, carve_core: float = 0.5,
                   count_shadow: bool = False, carve_spacing_voxels: float = 1.0, explain_shadow_rays: bool = False,
                   explain_camera_free: bool = False, explain_score: str = "ratio", footprint_voxels: float = 0.0,
-                  footprint_views: int = 1):
+                  footprint_views: int = 1, nearest_free: bool = False, nearest_surface: bool = False):
     """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
     blocker of a shadowed segment (with `explain_shadow_rays`), 5 kept by the footprint rule (with
     `footprint_voxels` > 0: a line-carved voxel that shadowed rays cross stays only if the rays within
@@ -194,6 +196,8 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     cols = torch.arange(0, data.width, stride, device=dev)
     sub = (rows[:, None] * data.width + cols[None, :]).reshape(-1)
     d = data.visible_depth[sub]
+    if nearest_free and data.nearest_depth is not None:    # a thin part in the pixel: free only up to it
+        d = torch.fmin(data.nearest_depth[sub], d)
     ok = torch.isfinite(d)
     sub, d = sub[ok], d[ok]
     c = data.sensor_origin
@@ -209,6 +213,13 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     idx, inside = box.cell_index(x_all[okx])
     flat = (idx[:, 0] * box.shape[1] + idx[:, 1]) * box.shape[2] + idx[:, 2]
     surface += torch.bincount(flat[inside], minlength=n)
+    nearest = torch.zeros(n, dtype=torch.long, device=dev)
+    if nearest_surface and data.nearest_depth is not None:
+        # the nearest surface of a pixel whose strongest return lies behind it: a part thinner than the pixel
+        thin = okx & (data.nearest_depth < data.visible_depth - box.voxel)
+        idx, inside = box.cell_index(c + data.pixel_dirs[thin] * data.nearest_depth[thin, None])
+        flat = (idx[:, 0] * box.shape[1] + idx[:, 1]) * box.shape[2] + idx[:, 2]
+        nearest += torch.bincount(flat[inside], minlength=n)
     # shadow carving: lit pairs on the carving pixels only; shadowed pairs count occluder evidence
     on_sub = torch.zeros(data.height * data.width, dtype=torch.bool, device=dev)
     on_sub[sub] = True
@@ -221,6 +232,7 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     label[lit_count >= max(1, carve_min_lit)] = 3
     label[cam_free > 0] = 2
     label[surface > 0] = 1
+    label[(nearest > 0) & (surface == 0)] = NEAREST
     if footprint_voxels > 0 and (count_shadow or consistent):
         from .cone_carving import cone_free
         cand = torch.nonzero(((label == 2) | (label == 3)) & (shadow_count > 0), as_tuple=False).squeeze(1)
@@ -294,7 +306,8 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
                                         cfg.step_voxels, cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
                                         count_shadow=cfg.trim_hull_voxels > 0, explain_shadow_rays=cfg.explain_shadows,
                                         explain_camera_free=cfg.explain_camera_free, explain_score=cfg.explain_score,
-                                        footprint_voxels=cfg.footprint_voxels, footprint_views=cfg.footprint_views)
+                                        footprint_voxels=cfg.footprint_voxels, footprint_views=cfg.footprint_views,
+                                        nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface)
     free = (label == 2) | (label == 3)
     dev = data.pixel_dirs.device
     surface = visible_surface(data, box)
@@ -330,6 +343,6 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
         # hull's boundary at the edge of the view stays unreported
         mesh_free = free | (unobserved & (shell < 0) & (shell > -cfg.plane_free_band_voxels * box.voxel))
     if sd is not None:
-        near = torch.isfinite(sd) & ((label != 3) | (sd <= 0.5 * box.voxel)) & (label != RESTORED)
+        near = torch.isfinite(sd) & ((label != 3) | (sd <= 0.5 * box.voxel)) & (label != RESTORED) & (label != NEAREST)
         raw = torch.where(near, ramp(sd), raw)
     return DensityGrid.from_xyz(box, raw.float(), cfg.density_scale), mesh_free
