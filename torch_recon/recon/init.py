@@ -178,6 +178,27 @@ def _pixel_stride(data: RayData, voxel: float, spacing_voxels: float = 1.0) -> i
     return max(1, int(spacing_voxels * voxel / footprint))
 
 
+def thin_part_points(data: RayData, voxel: float, samples: int = 4):
+    """World points of parts thinner than a pixel, chunk by chunk: the nearest surface of each pixel whose
+    strongest return lies more than `voxel` behind it (`nearest_depth`), and the segments joining it to the
+    8-neighbouring pixels' nearest surfaces at the same range (within `voxel`): a pole or a leg seen
+    over a column of pixels is one continuous part, not a dotted line with gaps where the pixel rows
+    (3.7 cm apart at 3 m, 128 px) step over a 3.2 cm voxel."""
+    h, w = data.height, data.width
+    d = data.visible_depth.reshape(h, w)
+    r = torch.fmin(data.nearest_depth.reshape(h, w), d)
+    thin = torch.isfinite(d) & (r < d - voxel)
+    x = data.sensor_origin + data.pixel_dirs.reshape(h, w, 3) * r[..., None]
+    yield x[thin]
+    s = torch.linspace(0.0, 1.0, samples + 2, device=d.device)[1:-1]
+    for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        a = (slice(0, h - dy), slice(max(0, -dx), w - max(dx, 0)))
+        b = (slice(dy, h), slice(max(0, dx), w + min(dx, 0)))
+        same = (thin[a] | thin[b]) & torch.isfinite(r[a]) & torch.isfinite(r[b]) & ((r[a] - r[b]).abs() < voxel)
+        pa, pb = x[a][same], x[b][same]
+        yield (pa[:, None] + s[None, :, None] * (pb - pa)[:, None]).reshape(-1, 3)
+
+
 def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.0, carve_min_lit: int = 1,
                   secondary_offset_m: float = 0.0, step_voxels: float = 0.5, carve_core: float = 0.5,
                   count_shadow: bool = False, carve_spacing_voxels: float = 1.0, explain_shadow_rays: bool = False,
@@ -216,10 +237,10 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     nearest = torch.zeros(n, dtype=torch.long, device=dev)
     if nearest_surface and data.nearest_depth is not None:
         # the nearest surface of a pixel whose strongest return lies behind it: a part thinner than the pixel
-        thin = okx & (data.nearest_depth < data.visible_depth - box.voxel)
-        idx, inside = box.cell_index(c + data.pixel_dirs[thin] * data.nearest_depth[thin, None])
-        flat = (idx[:, 0] * box.shape[1] + idx[:, 1]) * box.shape[2] + idx[:, 2]
-        nearest += torch.bincount(flat[inside], minlength=n)
+        for pts in thin_part_points(data, box.voxel):
+            idx, inside = box.cell_index(pts)
+            flat = (idx[:, 0] * box.shape[1] + idx[:, 1]) * box.shape[2] + idx[:, 2]
+            nearest += torch.bincount(flat[inside], minlength=n)
     # shadow carving: lit pairs on the carving pixels only; shadowed pairs count occluder evidence
     on_sub = torch.zeros(data.height * data.width, dtype=torch.bool, device=dev)
     on_sub[sub] = True
