@@ -84,11 +84,7 @@ class FastConfig:
                                       # and floor ramps (|g| ~ 5e-5) stay while the chair's (4e-4 - 1e-3) train.
                                       # Cave-chair 128, 100 steps: 1e-8 (torch default) depth L1 0.075 m, 1e-4
                                       # 0.058, 1e-3 0.055 (hidden R@2cm 0.76 -> 0.83), 1e-2 0.061 (F@2cm 0.78)
-    # --- thin parts in the start field (session 7; recon/cone_carving.py, recon/hull_trim.py) ---
-    footprint_voxels: float = 0.0     # > 0: a line-carved voxel that shadowed rays cross stays occupied unless the
-                                      # camera's or a spot's rays within this many voxels of its centre show it free
-    footprint_views: int = 1          # ... free from at least this many viewpoints (sensor, spots): a thin part's
-                                      # shadow a spot's pixels miss leaves it free from that spot alone
+    # --- thin parts and hull in the start field (recon/init.py, recon/hull_trim.py) ---
     nearest_free: bool = True         # camera rays are free only up to the pixel's nearest return (earliest
                                       # significant two-bounce return, preprocess): a part under a pixel wide in
                                       # front of the floor is not carved by the pixel that sees past it
@@ -176,13 +172,8 @@ class FitConfig:
                                 f"expected 'both', 'coarse' or 'off', got {self.platonerf.reinit_dead!r}")
         if self.fast.explain_score not in ("ratio", "spots"):
             raise SettingsError("fast.explain_score", f"expected 'ratio' or 'spots', got {self.fast.explain_score!r}")
-        if not 0.0 <= self.fast.footprint_voxels <= 4.0:
-            raise SettingsError("fast.footprint_voxels", f"expected a value in [0, 4] (voxels; 0: off), "
-                                                         f"got {self.fast.footprint_voxels}")
         if self.fast.trim_hull_voxels < 0:
             raise SettingsError("fast.trim_hull_voxels", f"expected an integer >= 0 (0: off), got {self.fast.trim_hull_voxels}")
-        if self.fast.footprint_views < 1:
-            raise SettingsError("fast.footprint_views", f"expected an integer >= 1, got {self.fast.footprint_views}")
         check_device_name(self.device)
         for key in ("fast.lr", "fast.adam_eps", "fast.step_voxels", "fast.rays_per_batch", "platonerf.lr", "platonerf.rays_per_batch",
                     "loss.path_scale_m"):

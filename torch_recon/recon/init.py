@@ -1,8 +1,10 @@
 """Fast-mode initialisation: a density grid from the closed-form visible depth and shadow carving.
 
 Evidence, voxel by voxel (priority top to bottom):
-1. the voxel holding a visible surface point x = c + d u (closed-form depth d): occupied;
-2. crossed by a camera ray before its visible surface: free;
+1. the voxel holding a visible surface point x = c + d u (closed-form depth d): occupied; so is the voxel
+   holding a pixel's nearest surface where its strongest return lies behind it (a leg under a pixel wide in
+   front of the floor: `thin_part_points`), and the voxels joining it to its neighbours' at the same range;
+2. crossed by a camera ray before its visible surface (before its nearest surface): free;
 3. crossed by at least `carve_min_lit` lit secondary rays x -> l: free (shadow carving);
 4. otherwise, inside the sensor's view (hidden from the sensor and never lit through): occupied, the
    shadow hull of BF Lidar; outside the view (no measurement reaches it): the planes bounding the
@@ -122,8 +124,6 @@ def _segments(data: RayData, mask, off):
 
 #: evidence label of a carved voxel put back because a shadowed segment needs a blocker there
 RESTORED = 4
-#: evidence label of a line-carved voxel that the rays' footprints do not show free (cone_carving.py)
-KEPT = 5
 #: evidence label of the nearest surface of a pixel whose strongest return lies behind (a part under a pixel wide)
 NEAREST = 6
 
@@ -202,13 +202,12 @@ def thin_part_points(data: RayData, voxel: float, samples: int = 4):
 def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.0, carve_min_lit: int = 1,
                   secondary_offset_m: float = 0.0, step_voxels: float = 0.5, carve_core: float = 0.5,
                   count_shadow: bool = False, carve_spacing_voxels: float = 1.0, explain_shadow_rays: bool = False,
-                  explain_camera_free: bool = False, explain_score: str = "ratio", footprint_voxels: float = 0.0,
-                  footprint_views: int = 1, nearest_free: bool = False, nearest_surface: bool = False):
+                  explain_camera_free: bool = False, explain_score: str = "ratio", nearest_free: bool = False,
+                  nearest_surface: bool = False):
     """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
-    blocker of a shadowed segment (with `explain_shadow_rays`), 5 kept by the footprint rule (with
-    `footprint_voxels` > 0: a line-carved voxel that shadowed rays cross stays only if the rays within
-    that many voxels of its centre show it free, cone_carving.py); and the count
-    of shadowed secondary segments through each voxel (with `count_shadow`)."""
+    blocker of a shadowed segment (with `explain_shadow_rays`), 6 a part under a pixel wide (with
+    `nearest_surface`: `thin_part_points`); and the count of shadowed secondary segments through each voxel
+    (with `count_shadow`). With `nearest_free` a camera ray is free only up to its pixel's nearest depth."""
     dev = data.pixel_dirs.device
     n = int(np.prod(box.shape))
     step = step_voxels * box.voxel
@@ -254,12 +253,6 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     label[cam_free > 0] = 2
     label[surface > 0] = 1
     label[(nearest > 0) & (surface == 0)] = NEAREST
-    if footprint_voxels > 0 and (count_shadow or consistent):
-        from .cone_carving import cone_free
-        cand = torch.nonzero(((label == 2) | (label == 3)) & (shadow_count > 0), as_tuple=False).squeeze(1)
-        pts = box.centres().reshape(-1, 3)[cand]
-        keep = cone_free(data, pts, box.voxel, surface_margin_voxels * box.voxel, off, footprint_voxels) < footprint_views
-        label[cand[keep]] = KEPT
     if consistent:
         seg = _segments(data, data.shadowed & on_sub[data.pair_pixel], off)
         score = None
@@ -327,7 +320,6 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
                                         cfg.step_voxels, cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
                                         count_shadow=cfg.trim_hull_voxels > 0, explain_shadow_rays=cfg.explain_shadows,
                                         explain_camera_free=cfg.explain_camera_free, explain_score=cfg.explain_score,
-                                        footprint_voxels=cfg.footprint_voxels, footprint_views=cfg.footprint_views,
                                         nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface)
     free = (label == 2) | (label == 3)
     dev = data.pixel_dirs.device
