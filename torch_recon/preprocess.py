@@ -149,7 +149,8 @@ def parallel_mask(dirs: np.ndarray, c, l, parallel_sin: float) -> np.ndarray:
 MIN_BACKGROUND_BINS = 24   # gates at least this wide (3 blocks of 8 bins) give each pixel's background rate
 
 
-def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: PreprocessSettings, device="cpu"):
+def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: PreprocessSettings, device="cpu",
+                        counting: bool = False):
     """Per-pixel confidence, raw matched-filter amplitude and sub-bin two-bounce path for one spot."""
     torch = _torch()
     h, w, g = tr.window.shape
@@ -226,7 +227,10 @@ def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: Prepro
         p = peak_path(k)
         p1 = p
         if settings.first_return_fraction > 0:
-            k1 = first_return_bin(corr, m, bg / gg, settings.first_return_fraction)
+            # photon counts: the earlier peak must also stand out of the counting noise (a stray photon is none)
+            noise = (FIRST_RETURN_Z * torch.sqrt(torch.clamp(bg / gg, min=1.0) * sum(pj * pj for _, pj in taps))
+                     if counting else None)
+            k1 = first_return_bin(corr, m, bg / gg, settings.first_return_fraction, noise)
             p1 = torch.where(k1 == k, p, peak_path(k1))
         conf[r0:r1] = c.reshape(r1 - r0, w).cpu().numpy()
         amp[r0:r1] = m.reshape(r1 - r0, w).cpu().numpy()
@@ -238,16 +242,23 @@ def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: Prepro
     return FilterOutput(np.clip(conf, 0.0, 1.0), amp, path, counts, variance, background, first)
 
 
-def first_return_bin(corr, peak, background_per_bin, fraction: float):
+#: standard deviations of the filtered counting noise an earliest return must exceed (photon counts)
+FIRST_RETURN_Z = 4.0
+
+
+def first_return_bin(corr, peak, background_per_bin, fraction: float, noise=None):
     """Per row of the matched filter's output `corr` (R, G): the earliest local maximum whose height above
     the background rate exceeds `fraction` x the strongest one's (`peak`, (R,)).
 
     A pixel half covered by a thin part (a 2 cm leg in front of the floor) holds two returns: the part's,
     earlier (along one ray the two-bounce path t + |c + t u - l| grows with the range t), and the floor's,
     often stronger. The strongest names the visible depth; the earliest bounds the pixel's free space.
-    Rows without such a maximum keep the strongest's bin."""
+    Rows without such a maximum keep the strongest's bin. `noise` (R,): with photon counts, the height above
+    the background must also exceed it."""
     import torch
     thr = background_per_bin + fraction * (peak - background_per_bin)
+    if noise is not None:
+        thr = torch.maximum(thr, background_per_bin + noise)
     nxt = torch.cat([corr[:, 1:], torch.full_like(corr[:, :1], -float("inf"))], 1)
     cand = (corr >= thr[:, None]) & (corr >= nxt) & (corr > background_per_bin[:, None])
     return torch.where(cand.any(1), cand.to(torch.uint8).argmax(1), corr.argmax(1))
@@ -267,7 +278,8 @@ def process_spot(tr: Transient, sensor, spot, settings: PreprocessSettings, devi
             warnings.warn(f"spot {spot.id}: first bounce estimated from the transient {np.round(fb.point, 4).tolist()} "
                           f"is {err:.4f} m from the recorded one {np.round(rec, 4).tolist()} "
                           f"(tolerance {settings.first_bounce_tolerance_m} m)", stacklevel=2)
-    mf = matched_filter_spot(tr, sensor, fb, settings, device)
+    counting = photon_counting(tr, settings)     # expected values: no counting noise, a dark pixel is dark
+    mf = matched_filter_spot(tr, sensor, fb, settings, device, counting)
     conf, amp, path = mf.confidence, mf.amplitude, mf.path
     if dirs is None:
         dirs = world_pixel_directions(sensor)
@@ -276,7 +288,6 @@ def process_spot(tr: Transient, sensor, spot, settings: PreprocessSettings, devi
     if fb.pixel is not None:
         excluded[fb.pixel] = True
     signal = (conf >= settings.shadow_threshold) & ~excluded
-    counting = photon_counting(tr, settings)     # expected values: no counting noise, a dark pixel is dark
     # darkness is judged against the lit pixels of the matched filter, before partial shadows join the dark
     unlabelled = unsupported_shadow_mask(mf, signal, excluded, settings.shadow_false_alarm) \
         if counting and settings.shadow_false_alarm > 0 else np.zeros_like(signal)

@@ -78,3 +78,15 @@ def test_a_first_return_fraction_outside_0_1_is_refused():
 
     with pytest.raises(PreprocessError, match="first_return_fraction"):
         PreprocessSettings(first_return_fraction=1.5).validate()
+
+
+def test_with_photon_counts_a_stray_photon_before_the_return_is_no_earlier_surface():
+    n = 60
+    one_photon = np.zeros(n)
+    one_photon[10] = 1.0                            # one photon, 20 % of a 5-photon return: not a surface
+    rows = np.stack([one_photon + _pulse(n, 30, 5.0), _pulse(n, 10, 12.0) + _pulse(n, 30, 40.0)])
+    corr = torch.as_tensor(rows)
+    noise = torch.full((2,), 4.0 * np.sqrt(0.3), dtype=corr.dtype)
+    k = first_return_bin(corr, corr.max(1).values, torch.zeros(2, dtype=corr.dtype), 0.1, noise)
+    assert k.tolist() == [30, 10]
+    assert first_return_bin(corr, corr.max(1).values, torch.zeros(2, dtype=corr.dtype), 0.1).tolist() == [10, 10]

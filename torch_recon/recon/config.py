@@ -90,6 +90,8 @@ class FastConfig:
                                       # front of the floor is not carved by the pixel that sees past it
     nearest_surface: bool = True      # ... and that nearest surface is occupied where the strongest return lies
                                       # more than a voxel behind it (the thin part itself)
+    thin_part_half_width_voxels: float = 0.0  # > 0: those voxels start this far inside the surface (a part thinner
+                                      # than a voxel); 0: fully occupied
     trim_hull_voxels: int = 8         # > 0: hull voxels no shadowed ray crosses, reachable from measured free space
                                       # through such voxels within this many voxels, start empty (recon/hull_trim.py).
                                       # Cave-chair trained: spurious 1.05 -> 0.49 %, chair unchanged; 0: old start
