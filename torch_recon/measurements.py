@@ -19,7 +19,7 @@ from .contract.errors import MeasurementsError
 MEASUREMENTS_VERSION = 1
 
 
-_OPTIONAL_SPOT_ARRAYS = ("pulse", "first_bounce_path_m", "amplitude", "first_bounce_recorded")
+_OPTIONAL_SPOT_ARRAYS = ("pulse", "first_bounce_path_m", "amplitude", "first_bounce_recorded", "first_return_path")
 
 
 @dataclass
@@ -41,6 +41,8 @@ class SpotMeasurement:
     first_bounce_path_m: float | None = None  # optical path of the first-bounce return, |l-o| + |l-c|
     amplitude: np.ndarray | None = None       # (H, W) float32 raw matched-filter peak (signal strength)
     first_bounce_recorded: np.ndarray | None = None  # (3,) l_k as recorded by the simulator, if any
+    first_return_path: np.ndarray | None = None  # (H, W) float32 path of the earliest significant two-bounce
+                                                 # return (a thin part in front of the surface); NaN: no signal
 
     @property
     def usable(self) -> np.ndarray:
@@ -61,6 +63,8 @@ class Measurements:
     spots: list = field(default_factory=list)   # list[SpotMeasurement]
     visible_depth: np.ndarray | None = None     # (H, W) range along pixel rays (closed form, fused); NaN = unknown
     visible_confidence: np.ndarray | None = None  # (H, W) in [0, 1]
+    nearest_depth: np.ndarray | None = None       # (H, W) range of the nearest surface any part of the pixel
+                                                  # sees (earliest returns, fused); <= visible_depth; NaN = unknown
     settings: dict = field(default_factory=dict)  # preprocessing settings used (JSON-able)
     ray_directions: np.ndarray | None = None      # (H, W, 3) unit world directions when the sensor is no
                                                   # pinhole (e.g. a scanned real capture); None = pinhole
@@ -89,6 +93,8 @@ class Measurements:
         if self.visible_depth is not None:
             arrays["visible_depth"] = self.visible_depth
             arrays["visible_confidence"] = self.visible_confidence
+        if self.nearest_depth is not None:
+            arrays["nearest_depth"] = self.nearest_depth
         for k, s in enumerate(self.spots):
             arrays[f"s{k}_id"] = np.array(s.spot_id)
             arrays[f"s{k}_fbpix"] = np.array(s.first_bounce_pixel if s.first_bounce_pixel else (-1, -1))
@@ -166,5 +172,6 @@ class Measurements:
                    shadow_threshold=thr, spots=spots,
                    visible_depth=z["visible_depth"] if "visible_depth" in z else None,
                    visible_confidence=z["visible_confidence"] if "visible_confidence" in z else None,
+                   nearest_depth=z["nearest_depth"] if "nearest_depth" in z else None,
                    settings=json.loads(str(z["settings_json"])) if "settings_json" in z else {},
                    ray_directions=z["ray_directions"] if "ray_directions" in z else None)

@@ -64,6 +64,9 @@ class PreprocessSettings:
                                        # shadowed, left unlabelled (neither lit nor shadow); 0: off
     partial_shadow_z: float = 2.0      # ... and the deficit exceeds this many Poisson standard deviations
     partial_shadow_edges: bool = True  # also the rim of a shadow: dimmer than ratio x the lit side
+    first_return_fraction: float = 0.1  # a pixel's earliest return counts when its filtered peak exceeds this x
+                                       # the strongest one's (above background): a thin part in front of a wall
+                                       # fills part of the pixel and returns first (0: off)
     photon_statistics: str = "auto"    # 'poisson': values are photon counts; 'none': expected values (no
                                        # counting noise); 'auto': 'poisson' when every stored value is an integer
     shadow_false_alarm: float = 0.05  # a dark pixel next to lit ones is a shadow only where a lit pixel
@@ -93,6 +96,8 @@ class PreprocessSettings:
             raise PreprocessError(f"photon_statistics must be 'auto', 'poisson' or 'none', got {self.photon_statistics!r}")
         if not 0.0 <= self.shadow_false_alarm < 1.0:
             raise PreprocessError(f"shadow_false_alarm must be in [0, 1), got {self.shadow_false_alarm}")
+        if not 0.0 <= self.first_return_fraction < 1.0:
+            raise PreprocessError(f"first_return_fraction must be in [0, 1), got {self.first_return_fraction}")
         if not 0.0 <= self.partial_unlabel_ratio < 1.0:
             raise PreprocessError(f"partial_unlabel_ratio must be in [0, 1), got {self.partial_unlabel_ratio}")
         if not (self.partial_shadow_z >= 0 and self.same_surface_bins > 0):
@@ -144,7 +149,8 @@ def parallel_mask(dirs: np.ndarray, c, l, parallel_sin: float) -> np.ndarray:
 MIN_BACKGROUND_BINS = 24   # gates at least this wide (3 blocks of 8 bins) give each pixel's background rate
 
 
-def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: PreprocessSettings, device="cpu"):
+def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: PreprocessSettings, device="cpu",
+                        counting: bool = False):
     """Per-pixel confidence, raw matched-filter amplitude and sub-bin two-bounce path for one spot."""
     torch = _torch()
     h, w, g = tr.window.shape
@@ -168,6 +174,7 @@ def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: Prepro
     variance = np.zeros((h, w), np.float32)
     background = np.zeros((h, w), np.float32)
     path = np.full((h, w), np.nan, np.float32)
+    first = np.full((h, w), np.nan, np.float32)
     if dense:   # centres stop h bins before the end, so the padded view below needs no copy
         gate_hi = min(gate_hi, sensor.bins - hw)
         if gate_hi <= gate_lo:
@@ -208,20 +215,53 @@ def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: Prepro
             corr.add_(xp[:, j:j + gg], alpha=pj)
         m, k = corr.max(dim=1)
         c = torch.where(total > 0, m / total.clamp_min(1e-30), torch.zeros_like(m))
-        # the raw maximum next to the filter peak, then its sub-bin offset from 3 bins
-        idx = k[:, None] + hw + torch.arange(-1, 2, device=device)
-        kk = k + torch.gather(xp, 1, idx).argmax(dim=1) - 1
-        kk = kk.clamp(0, gg - 1)
-        three = torch.gather(xp, 1, kk[:, None] + hw + torch.arange(-1, 2, device=device))
-        off = subbin_offset(three[:, 0], three[:, 1], three[:, 2], settings.refine, lut, torch)
-        p = sensor.start_m + (base + kk).to(torch.float64) * bw + (0.5 + off.to(torch.float64)) * bw
+
+        def peak_path(k):
+            # the raw maximum next to the filter peak k, then its sub-bin offset from 3 bins
+            idx = k[:, None] + hw + torch.arange(-1, 2, device=device)
+            kk = (k + torch.gather(xp, 1, idx).argmax(dim=1) - 1).clamp(0, gg - 1)
+            three = torch.gather(xp, 1, kk[:, None] + hw + torch.arange(-1, 2, device=device))
+            off = subbin_offset(three[:, 0], three[:, 1], three[:, 2], settings.refine, lut, torch)
+            return sensor.start_m + (base + kk).to(torch.float64) * bw + (0.5 + off.to(torch.float64)) * bw
+
+        p = peak_path(k)
+        p1 = p
+        if settings.first_return_fraction > 0:
+            # photon counts: the earlier peak must also stand out of the counting noise (a stray photon is none)
+            noise = (FIRST_RETURN_Z * torch.sqrt(torch.clamp(bg / gg, min=1.0) * sum(pj * pj for _, pj in taps))
+                     if counting else None)
+            k1 = first_return_bin(corr, m, bg / gg, settings.first_return_fraction, noise)
+            p1 = torch.where(k1 == k, p, peak_path(k1))
         conf[r0:r1] = c.reshape(r1 - r0, w).cpu().numpy()
         amp[r0:r1] = m.reshape(r1 - r0, w).cpu().numpy()
         counts[r0:r1] = (total - bg).clamp_min(0).reshape(r1 - r0, w).cpu().numpy()
         variance[r0:r1] = total.reshape(r1 - r0, w).cpu().numpy()
         background[r0:r1] = bg.reshape(r1 - r0, w).cpu().numpy()
         path[r0:r1] = p.reshape(r1 - r0, w).to(torch.float32).cpu().numpy()
-    return FilterOutput(np.clip(conf, 0.0, 1.0), amp, path, counts, variance, background)
+        first[r0:r1] = p1.reshape(r1 - r0, w).to(torch.float32).cpu().numpy()
+    return FilterOutput(np.clip(conf, 0.0, 1.0), amp, path, counts, variance, background, first)
+
+
+#: standard deviations of the filtered counting noise an earliest return must exceed (photon counts)
+FIRST_RETURN_Z = 4.0
+
+
+def first_return_bin(corr, peak, background_per_bin, fraction: float, noise=None):
+    """Per row of the matched filter's output `corr` (R, G): the earliest local maximum whose height above
+    the background rate exceeds `fraction` x the strongest one's (`peak`, (R,)).
+
+    A pixel half covered by a thin part (a 2 cm leg in front of the floor) holds two returns: the part's,
+    earlier (along one ray the two-bounce path t + |c + t u - l| grows with the range t), and the floor's,
+    often stronger. The strongest names the visible depth; the earliest bounds the pixel's free space.
+    Rows without such a maximum keep the strongest's bin. `noise` (R,): with photon counts, the height above
+    the background must also exceed it."""
+    import torch
+    thr = background_per_bin + fraction * (peak - background_per_bin)
+    if noise is not None:
+        thr = torch.maximum(thr, background_per_bin + noise)
+    nxt = torch.cat([corr[:, 1:], torch.full_like(corr[:, :1], -float("inf"))], 1)
+    cand = (corr >= thr[:, None]) & (corr >= nxt) & (corr > background_per_bin[:, None])
+    return torch.where(cand.any(1), cand.to(torch.uint8).argmax(1), corr.argmax(1))
 
 
 def process_spot(tr: Transient, sensor, spot, settings: PreprocessSettings, device="cpu", dirs=None,
@@ -238,7 +278,8 @@ def process_spot(tr: Transient, sensor, spot, settings: PreprocessSettings, devi
             warnings.warn(f"spot {spot.id}: first bounce estimated from the transient {np.round(fb.point, 4).tolist()} "
                           f"is {err:.4f} m from the recorded one {np.round(rec, 4).tolist()} "
                           f"(tolerance {settings.first_bounce_tolerance_m} m)", stacklevel=2)
-    mf = matched_filter_spot(tr, sensor, fb, settings, device)
+    counting = photon_counting(tr, settings)     # expected values: no counting noise, a dark pixel is dark
+    mf = matched_filter_spot(tr, sensor, fb, settings, device, counting)
     conf, amp, path = mf.confidence, mf.amplitude, mf.path
     if dirs is None:
         dirs = world_pixel_directions(sensor)
@@ -247,7 +288,6 @@ def process_spot(tr: Transient, sensor, spot, settings: PreprocessSettings, devi
     if fb.pixel is not None:
         excluded[fb.pixel] = True
     signal = (conf >= settings.shadow_threshold) & ~excluded
-    counting = photon_counting(tr, settings)     # expected values: no counting noise, a dark pixel is dark
     # darkness is judged against the lit pixels of the matched filter, before partial shadows join the dark
     unlabelled = unsupported_shadow_mask(mf, signal, excluded, settings.shadow_false_alarm) \
         if counting and settings.shadow_false_alarm > 0 else np.zeros_like(signal)
@@ -260,13 +300,14 @@ def process_spot(tr: Transient, sensor, spot, settings: PreprocessSettings, devi
             dim = signal & part(settings.partial_unlabel_ratio)     # partly shadowed: neither carve nor build
             signal, unlabelled = signal & ~dim, unlabelled | dim
     path = np.where(signal, path, np.nan).astype(np.float32)
+    first = None if mf.first_path is None else np.where(signal, np.fmin(mf.first_path, path), np.nan).astype(np.float32)
     ld = np.asarray(spot.laser_direction, np.float64)
     return SpotMeasurement(
         spot_id=int(spot.id), first_bounce=fb.point.astype(np.float64), laser_direction=ld / np.linalg.norm(ld),
         path_length=path, signal=signal, shadow_confidence=conf.astype(np.float32),
         shadow=(~signal) & ~excluded & ~unlabelled, excluded=excluded, first_bounce_pixel=fb.pixel,
         pulse=fb.pulse.astype(np.float32), first_bounce_path_m=float(fb.path_m), amplitude=amp,
-        first_bounce_recorded=None if rec is None else np.asarray(rec, np.float64))
+        first_bounce_recorded=None if rec is None else np.asarray(rec, np.float64), first_return_path=first)
 
 
 def preprocess(sensor, spot_transients, settings: PreprocessSettings | None = None, device="cpu",
@@ -301,7 +342,7 @@ def preprocess(sensor, spot_transients, settings: PreprocessSettings | None = No
     if settings.compute_visible_depth:
         from .visible_depth import fuse_visible_depth
         fused = fuse_visible_depth(m, device=device)
-        m.visible_depth, m.visible_confidence = fused.depth, fused.confidence
+        m.visible_depth, m.visible_confidence, m.nearest_depth = fused.depth, fused.confidence, fused.nearest
     return m
 
 
@@ -384,7 +425,7 @@ def measurements_from_dataset(dataset, settings: PreprocessSettings | None = Non
     if settings.compute_visible_depth:
         from .visible_depth import fuse_visible_depth
         fused = fuse_visible_depth(m, device=device)
-        m.visible_depth, m.visible_confidence = fused.depth, fused.confidence
+        m.visible_depth, m.visible_confidence, m.nearest_depth = fused.depth, fused.confidence, fused.nearest
     return m
 
 

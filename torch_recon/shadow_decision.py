@@ -29,6 +29,7 @@ class FilterOutput:
     counts: np.ndarray       # (H, W) gated photons less the background estimate (>= 0)
     variance: np.ndarray     # (H, W) their Poisson variance: all gated photons
     background: np.ndarray   # (H, W) the background estimate: photons the gate holds without a return
+    first_path: np.ndarray | None = None  # (H, W) sub-bin path (m) of the earliest significant return
 
 
 def _shifted(a: np.ndarray, dy: int, dx: int, fill) -> np.ndarray:
@@ -93,7 +94,20 @@ def partial_shadow_mask(counts, variance, path, lit, excluded, bin_width_m, sett
     Depth edges (the other side another surface) and pixels without lit neighbours never qualify.
     """
     ratio = settings.partial_shadow_ratio if ratio is None else ratio
-    z, tol = settings.partial_shadow_z, settings.same_surface_bins * bin_width_m
+    best, best_var = lit_neighbour_bound(counts, variance, path, lit, excluded, bin_width_m, settings)
+    s = np.where(np.asarray(lit, bool), counts, 0.0).astype(np.float32)
+    deficit = ratio * best - s
+    if not poisson:
+        return lit & (deficit > 0)
+    # Poisson variance of the pixel at the decision boundary (at least ratio E photons) and of E
+    var = np.maximum(np.asarray(variance, np.float32), ratio * best) + ratio * ratio * best_var
+    return lit & (deficit > 0) & (deficit > settings.partial_shadow_z * np.sqrt(var))
+
+
+def lit_neighbour_bound(counts, variance, path, lit, excluded, bin_width_m, settings):
+    """E (H, W): a lower bound of the photons a lit pixel would receive unshadowed, from its same-surface lit
+    neighbours (`partial_shadow_mask`); 0 where no pair qualifies. Also the variance of the neighbour giving E."""
+    tol = settings.same_surface_bins * bin_width_m
     lit = np.asarray(lit, bool)
     s = np.where(lit, counts, 0.0).astype(np.float32)
     v = np.asarray(variance, np.float32)
@@ -118,9 +132,4 @@ def partial_shadow_mask(counts, variance, path, lit, excluded, bin_width_m, sett
             for e, ev in cands:
                 take = e > best
                 best, best_var = np.where(take, e, best), np.where(take, ev, best_var)
-    deficit = ratio * best - s
-    if not poisson:
-        return lit & (deficit > 0)
-    # Poisson variance of the pixel at the decision boundary (at least ratio E photons) and of E
-    var = np.maximum(v, ratio * best) + ratio * ratio * best_var
-    return lit & (deficit > 0) & (deficit > z * np.sqrt(var))
+    return best, best_var

@@ -18,6 +18,12 @@ denominator above: a bin of path error moves t by that much. Spots are fused
 per pixel by the median, then the estimates within `inlier_m` of it are
 averaged with weights 1 / (dt/dD')^2 (better-conditioned spots count more).
 Confidence = inliers / spots that measured the pixel (lit or shadow).
+
+Nearest depth. A pixel partly covered by a thin part (a leg narrower than the pixel) holds two returns
+per spot; the strongest (above) usually is the surface behind. Each spot's earliest significant return
+(`first_return_path`) gives a range the same way; the nearest surface of the pixel is the second
+smallest of them (two spots must see it: one spot's stray early peak does not count), never beyond
+the depth. Camera rays are free only up to it.
 """
 
 from __future__ import annotations
@@ -35,6 +41,7 @@ class VisibleDepth:
     confidence: np.ndarray   # (H, W) float32 in [0, 1]
     count: np.ndarray        # (H, W) int: spots giving a valid estimate
     per_spot: np.ndarray | None = None  # (S, H, W) per-spot estimates (NaN: none)
+    nearest: np.ndarray | None = None   # (H, W) float32 range of the nearest surface in the pixel (<= depth)
 
 
 def ellipsoid_range(path, first_bounce, laser_origin, sensor_origin, dirs, min_denominator=1e-6):
@@ -68,11 +75,14 @@ def fuse_visible_depth(meas, device="cpu", inlier_m: float | None = None, keep_p
     dirs = torch.as_tensor(dirs, dtype=dtype, device=device)
     c = np.asarray(meas.camera_to_world, np.float64)[:3, 3]
     inlier_m = meas.bin_width_m if inlier_m is None else inlier_m
-    ts, ws, measured = [], [], []
+    ts, ws, measured, firsts = [], [], [], []
     for s in meas.spots:
         path = torch.as_tensor(np.where(s.signal, s.path_length, np.nan), dtype=dtype, device=device)
         t, dt = ellipsoid_range(path, s.first_bounce, meas.laser_origin, c, dirs)
         ts.append(t)
+        if s.first_return_path is not None:
+            p1 = torch.as_tensor(np.where(s.signal, s.first_return_path, np.nan), dtype=dtype, device=device)
+            firsts.append(ellipsoid_range(p1, s.first_bounce, meas.laser_origin, c, dirs)[0])
         ws.append(1.0 / (dt * dt).clamp_min(1e-6))
         measured.append(torch.as_tensor(~np.asarray(s.excluded, bool), device=device))
     t = torch.stack(ts)                                    # (S, H, W)
@@ -86,9 +96,14 @@ def fuse_visible_depth(meas, device="cpu", inlier_m: float | None = None, keep_p
     n_meas = torch.stack(measured).sum(0)
     n_inl = inl.sum(0)
     conf = torch.where(n_meas > 0, n_inl.to(dtype) / n_meas.clamp_min(1).to(dtype), torch.zeros_like(med))
+    nearest = None
+    if len(firsts) == len(ts) and len(ts) >= 2:
+        t1 = torch.stack(firsts)
+        second = torch.kthvalue(torch.where(torch.isfinite(t1), t1, torch.full_like(t1, float("inf"))), 2, dim=0).values
+        nearest = torch.where(torch.isfinite(depth), torch.fmin(second, depth), depth).to(torch.float32).cpu().numpy()
     return VisibleDepth(depth=depth.to(torch.float32).cpu().numpy(), confidence=conf.to(torch.float32).cpu().numpy(),
                         count=torch.isfinite(t).sum(0).cpu().numpy(),
-                        per_spot=t.to(torch.float32).cpu().numpy() if keep_per_spot else None)
+                        per_spot=t.to(torch.float32).cpu().numpy() if keep_per_spot else None, nearest=nearest)
 
 
 def visible_points(meas, depth=None, min_confidence: float = 0.0) -> np.ndarray:

@@ -88,11 +88,15 @@ class FastConfig:
                                       # and floor ramps (|g| ~ 5e-5) stay while the chair's (4e-4 - 1e-3) train.
                                       # Cave-chair 128, 100 steps: 1e-8 (torch default) depth L1 0.075 m, 1e-4
                                       # 0.058, 1e-3 0.055 (hidden R@2cm 0.76 -> 0.83), 1e-2 0.061 (F@2cm 0.78)
-    # --- thin parts in the start field (session 7; recon/cone_carving.py, recon/hull_trim.py) ---
-    footprint_voxels: float = 0.0     # > 0: a line-carved voxel that shadowed rays cross stays occupied unless the
-                                      # camera's or a spot's rays within this many voxels of its centre show it free
-    footprint_views: int = 1          # ... free from at least this many viewpoints (sensor, spots): a thin part's
-                                      # shadow a spot's pixels miss leaves it free from that spot alone
+    # --- thin parts and hull in the start field (recon/init.py, recon/hull_trim.py) ---
+    nearest_free: bool = True         # camera rays are free only up to the pixel's nearest return (earliest
+                                      # significant two-bounce return, preprocess): a part under a pixel wide in
+                                      # front of the floor is not carved by the pixel that sees past it
+    nearest_surface: bool = True      # ... and that nearest surface is occupied where the strongest return lies
+                                      # more than a voxel behind it (the thin part itself)
+    thin_part_half_width_voxels: float = 0.0  # > 0: those voxels start this far inside the surface (a part thinner
+                                      # than a voxel); 0: fully occupied. thin-structures 0.3: start better,
+                                      # trained worse (F@2cm table 0.792 -> 0.775; training erodes it)
     trim_hull_voxels: int = 8         # > 0: hull voxels no shadowed ray crosses, reachable from measured free space
                                       # through such voxels within this many voxels, start empty (recon/hull_trim.py).
                                       # Cave-chair trained: spurious 1.05 -> 0.49 %, chair unchanged; 0: old start
@@ -175,9 +179,9 @@ class FitConfig:
                                 f"expected 'both', 'coarse' or 'off', got {self.platonerf.reinit_dead!r}")
         if self.fast.explain_score not in ("ratio", "spots"):
             raise SettingsError("fast.explain_score", f"expected 'ratio' or 'spots', got {self.fast.explain_score!r}")
-        if not 0.0 <= self.fast.footprint_voxels <= 4.0:
-            raise SettingsError("fast.footprint_voxels", f"expected a value in [0, 4] (voxels; 0: off), "
-                                                         f"got {self.fast.footprint_voxels}")
+        if not 0.0 <= self.fast.thin_part_half_width_voxels <= 0.5:
+            raise SettingsError("fast.thin_part_half_width_voxels", f"expected a value in [0, 0.5] (voxels; 0: off), "
+                                                                    f"got {self.fast.thin_part_half_width_voxels}")
         if self.fast.trim_hull_voxels < 0:
             raise SettingsError("fast.trim_hull_voxels", f"expected an integer >= 0 (0: off), got {self.fast.trim_hull_voxels}")
         if not self.fast.normal_weight >= 0:
@@ -185,8 +189,6 @@ class FitConfig:
         if not 0 < self.fast.normal_max_angle_deg <= 90:
             raise SettingsError("fast.normal_max_angle_deg",
                                 f"expected an angle in (0, 90] degrees, got {self.fast.normal_max_angle_deg}")
-        if self.fast.footprint_views < 1:
-            raise SettingsError("fast.footprint_views", f"expected an integer >= 1, got {self.fast.footprint_views}")
         check_device_name(self.device)
         for key in ("fast.lr", "fast.adam_eps", "fast.step_voxels", "fast.rays_per_batch", "platonerf.lr", "platonerf.rays_per_batch",
                     "loss.path_scale_m"):

@@ -30,6 +30,8 @@ class RayData:
     visible_depth: torch.Tensor    # (P,) closed-form range along the pixel ray; NaN unknown
     height: int
     width: int
+    nearest_depth: torch.Tensor | None = None  # (P,) range of the nearest surface any part of the pixel sees
+                                               # (<= visible_depth: a thin part in front); None: unknown
 
     @property
     def n_pairs(self) -> int:
@@ -114,4 +116,6 @@ def build_ray_data(meas: Measurements) -> RayData:
                    pair_pixel=torch.as_tensor(np.concatenate(pix), dtype=torch.long),
                    pair_spot=torch.as_tensor(np.concatenate(spt), dtype=torch.long),
                    path=f32(np.concatenate(path)), lit=torch.as_tensor(np.concatenate(lit)),
-                   shadowed=torch.as_tensor(np.concatenate(shd)), visible_depth=f32(vd), height=h, width=w)
+                   shadowed=torch.as_tensor(np.concatenate(shd)), visible_depth=f32(vd), height=h, width=w,
+                   nearest_depth=None if meas.nearest_depth is None else f32(np.fmin(
+                       np.asarray(meas.nearest_depth, np.float32).reshape(-1), vd)))

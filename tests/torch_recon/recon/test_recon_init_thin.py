@@ -11,7 +11,7 @@ torch = pytest.importorskip("torch")
 from torch_recon.recon.data import RayData  # noqa: E402
 from torch_recon.recon.fields import GridBox  # noqa: E402
 from torch_recon.recon.hull_trim import unneeded_hull  # noqa: E402
-from torch_recon.recon.init import KEPT, RESTORED, evidence_grid  # noqa: E402
+from torch_recon.recon.init import NEAREST, RESTORED, evidence_grid  # noqa: E402
 from torch_recon.recon.visible_surface_init import _dilate_cube  # noqa: E402
 
 POST_XY, POST_R, POST_TOP = np.array([0.55, 0.45]), 0.02, 0.6
@@ -85,25 +85,6 @@ def _heights_kept(label, column):
     return sum(bool((blocked & column)[..., k].any()) for k in heights), len(heights)
 
 
-def test_ray_footprints_keep_a_post_lines_carve_without_new_hull():
-    """A 2 cm post seen from above (its top in the depth image) and grazed inside its 5 cm voxels by the
-    camera rays and lit secondary rays passing beside it: carving with lines takes the whole column (no
-    shadow pass here), carving with footprints keeps it (the post's shadowed rays and its top's depth lie in
-    every column voxel's footprint) and keeps nothing away from the post that lines carved."""
-    data = _post_scene(n_pix=48, seen_top=True)
-    box = GridBox([-0.05, -0.05, -0.05], [1.05, 1.05, 1.05], 22)
-    column, far = _column_and_far(box)
-    lines, _ = evidence_grid(data, box, carve_spacing_voxels=0.5, count_shadow=True)
-    cones, _ = evidence_grid(data, box, carve_spacing_voxels=0.5, count_shadow=True, footprint_voxels=0.5)
-    kept_lines, n = _heights_kept(lines, column)
-    kept_cones, _ = _heights_kept(cones, column)
-    assert n >= 6 and kept_lines <= 1 and kept_cones >= n - 1, (kept_lines, kept_cones, n)
-    free = lambda lab: (lab == 2) | (lab == 3)  # noqa: E731
-    below_spots = box.centres()[..., 2] < 0.75      # next to a spot every one of its rays converges: kept
-    assert int((free(lines) & ~free(cones) & far & below_spots).sum()) == 0
-    assert int(((cones == KEPT) & far & below_spots).sum()) == 0    # the post's voxels only, no hull
-
-
 def test_hull_no_shadow_needs_is_trimmed_the_post_stays():
     """The corners of the box beside the sensor's view cone, which no ray of any kind crosses, are shadow hull
     (a lump) that nothing measured needs: trimmed from the free side. The post, which every shadow it casts
@@ -123,10 +104,74 @@ def test_hull_no_shadow_needs_is_trimmed_the_post_stays():
     assert not bool((trimmed & band).any()) and not bool((trimmed & (shadow > 0)).any())
 
 
-@pytest.mark.parametrize("assignment", ["fast.trim_hull_voxels=-1", "fast.footprint_voxels=5", "fast.footprint_views=0"])
+@pytest.mark.parametrize("assignment", ["fast.trim_hull_voxels=-1", "fast.thin_part_half_width_voxels=0.7"])
 def test_start_field_settings_refuse_bad_values(assignment):
     from torch_recon.contract.errors import SettingsError
     from torch_recon.recon.config import FitConfig, override
 
     with pytest.raises(SettingsError, match=assignment.split("=")[0].replace(".", r"\.")):
         override(FitConfig(), [assignment])
+
+
+WALL_POST_XY, WALL_POST_R, WALL_POST_TOP = np.array([0.52, 0.5]), 0.01, 0.8
+
+
+def _post_before_a_wall(n_pix=24, with_nearest=True):
+    """Sensor at y = -1 looking at a wall at y = 1; a 2 cm post at y = 0.5 (under a pixel wide there: pixel
+    rows 3.1 cm apart) that the strongest return of every pixel misses. With `with_nearest`, each pixel
+    whose footprint (half a pixel either side) overlaps the post has its nearest depth there (its earliest
+    return). Four spots in front (y = 0); a pair is shadowed when its segment hits the post."""
+    c = np.array([0.5, -1.0, 0.5])
+    u = (np.arange(n_pix) + 0.5) / n_pix
+    gx, gz = np.meshgrid(u, u, indexing="xy")
+    x = np.stack([gx.reshape(-1), np.ones(n_pix * n_pix), gz.reshape(-1)], 1)
+    dirs = x - c
+    depth = np.linalg.norm(dirs, axis=1)
+    dirs /= depth[:, None]
+    nearest = depth.copy()
+    if with_nearest:
+        t = (WALL_POST_XY[1] - c[1]) / dirs[:, 1]           # range where the ray crosses the post's plane
+        at = c + dirs * t[:, None]
+        half = 0.5 * (t / depth) * (1.0 / n_pix)             # half a pixel's footprint at that range
+        seen = (np.abs(at[:, 0] - WALL_POST_XY[0]) < WALL_POST_R + half) & (at[:, 2] < WALL_POST_TOP)
+        nearest[seen] = t[seen]
+    spots = np.array([[0.1, 0.0, 0.2], [0.9, 0.0, 0.2], [0.1, 0.0, 0.8], [0.9, 0.0, 0.8]])
+    tt = np.linspace(0, 1, 400)
+    pix = np.tile(np.arange(len(x)), len(spots))
+    spt = np.repeat(np.arange(len(spots)), len(x))
+    shd = []
+    for l in spots:
+        seg = x[:, None] + (l - x)[:, None] * tt[None, :, None]
+        hit = np.linalg.norm(seg[..., [0, 1]] - WALL_POST_XY, axis=-1) < WALL_POST_R
+        shd.append((hit & (seg[..., 2] < WALL_POST_TOP)).any(1))
+    shd = np.concatenate(shd)
+    f = lambda a, dt=torch.float32: torch.as_tensor(np.asarray(a), dtype=dt)  # noqa: E731
+    return RayData(sensor_origin=f(c), laser_origin=f(c), pixel_dirs=f(dirs), spot_points=f(spots),
+                   laser_to_spot=f(np.linalg.norm(spots - c, axis=1)), pair_pixel=f(pix, torch.long),
+                   pair_spot=f(spt, torch.long), path=f(np.where(shd, np.nan, 1.0)), lit=f(~shd, torch.bool),
+                   shadowed=f(shd, torch.bool), visible_depth=f(depth), height=n_pix, width=n_pix,
+                   nearest_depth=f(nearest))
+
+
+def test_a_post_narrower_than_a_pixel_in_front_of_a_wall_is_kept_by_the_earliest_returns():
+    """Without the nearest depth the sensor's own rays (the wall's depth) and the lit rays grazing the post's
+    3.3 cm voxels carve every height of it; with it, the post is occupied at every height (joined across
+    pixel rows), and nothing more than a voxel from it is."""
+    data = _post_before_a_wall()
+    box = GridBox([-0.05, -1.05, -0.05], [1.05, 1.05, 1.05], 64)
+    centres = box.centres()
+    off_axis = torch.linalg.vector_norm(centres[..., :2] - torch.tensor(WALL_POST_XY, dtype=torch.float32), dim=-1)
+    z = centres[..., 2]
+    column = (off_axis < box.voxel) & (z > 0.1) & (z < WALL_POST_TOP - 0.1)
+    plain, _ = evidence_grid(data, box)
+    with_nearest, _ = evidence_grid(data, box, nearest_free=True, nearest_surface=True)
+    kept_plain, n = _heights_kept(plain, column)
+    kept, _ = _heights_kept(with_nearest, column)
+    assert n >= 15 and kept_plain <= 2 and kept == n, (kept_plain, kept, n)
+    assert int(((with_nearest == NEAREST) & (off_axis > 1.5 * box.voxel)).sum()) == 0
+    # camera free space alone (no occupied nearest surface): the sensor no longer carves the post, lit rays do
+    free_only, _ = evidence_grid(data, box, nearest_free=True)
+    zs = torch.arange(0.1, WALL_POST_TOP - 0.1, 0.5 * box.voxel)
+    axis = torch.stack([torch.full_like(zs, WALL_POST_XY[0]), torch.full_like(zs, WALL_POST_XY[1]), zs], 1)
+    i = box.cell_index(axis)[0]
+    assert int((free_only[i[:, 0], i[:, 1], i[:, 2]] == 2).sum()) == 0 < int((plain[i[:, 0], i[:, 1], i[:, 2]] == 2).sum())
