@@ -178,13 +178,21 @@ def fit_box(data, fast_config, resolution: int):
     return GridBox(lo, hi, resolution)
 
 
-def export_oracle(sd, box, fit_config, out_path, smooth_iterations=None, metadata=None):
+def export_oracle(sd, box, fit_config, out_path, smooth_iterations=None, min_island_fraction=None, metadata=None):
     """Marching cubes of the oracle field through the fit's export (api.export_volume, no UVs), free
-    space = the truly empty cells; returns (files, mesh)."""
-    from torch_recon.recon.api import export_volume
+    space = the truly empty cells; returns (files, mesh). smooth_iterations / min_island_fraction: other
+    than the fit's (None: the fit's Taubin passes and island cleanup)."""
+    from torch_recon.mesh_export import export_mesh
+    from torch_recon.recon.api import export_volume, voxel_centre_box
 
     vol, level = oracle_surface_volume(sd, box.voxel, fit_config.fast)
     lo, hi = box.bbox_min.cpu().numpy(), box.bbox_max.cpu().numpy()
     smooth = fit_config.mesh_smooth_iterations if smooth_iterations is None else smooth_iterations
-    return export_volume(vol, lo, hi, level, out_path, metadata or {"method": "oracle"}, uv=False,
-                         free_space=sd < 0, smooth_iterations=smooth)
+    meta = metadata or {"method": "oracle"}
+    if min_island_fraction is None:
+        return export_volume(vol, lo, hi, level, out_path, meta, uv=False, free_space=sd < 0,
+                             smooth_iterations=smooth)
+    # as export_volume, with the island cleanup changed (the exporter's grid points are the voxel centres)
+    res = export_mesh(vol, *voxel_centre_box(vol, lo, hi), level, out_path.with_suffix(".ply"), meta, uv=False,
+                      free_space=sd < 0, smooth_iterations=smooth, min_island_fraction=min_island_fraction)
+    return {p.suffix.lstrip("."): p for p in res.paths}, res.mesh

@@ -5,8 +5,9 @@ cached 128 px Cycles datasets) and grid resolution (voxels along the longest sid
 fit's start-field ramp on the TRUE signed distance at the voxel centres of the fit's own box, exported
 through the fit's own path (mesh level, faces facing free space, Taubin smoothing, island cleanup;
 benchmarks/oracle_grid.py), scored by `torch_recon evaluate` like the objects suite (object F@1/2/5 cm,
-P@2cm, hidden / visible recall at 2 cm, spurious, depth L1 on the valid test views). `oracle-no-smooth`:
-the same without Taubin smoothing (at `no_smooth_resolutions`): what the grid alone gives. The oracle's
+P@2cm, hidden / visible recall at 2 cm, spurious, depth L1 on the valid test views). At
+`variant_resolutions`: `oracle-no-smooth` without Taubin smoothing, `oracle-raw` also without the island
+cleanup (what the grid alone gives; `variants` picks which run). The oracle's
 times are its build (signed distance) and export in this process; its measurements are not read.
 Part 2, `fast`: real fits at `fit_resolutions` (`--set fast.resolution=N`, 2 threads, no UVs) on
 `fit_scenes`, times of the fit process (read, preprocess, fit, mesh), then the same evaluation.
@@ -28,7 +29,10 @@ from torch_recon.contract.scenes import OBJECT_SCENES
 class Settings:
     scenes: tuple = OBJECT_SCENES
     resolutions: tuple = (128, 192, 256)
-    no_smooth_resolutions: tuple = (128, 256)   # oracle without Taubin smoothing at these
+    # export variants of the oracle: `oracle` (the fit's export) at every resolution; `oracle-no-smooth` (no
+    # Taubin) and `oracle-raw` (no Taubin, no island cleanup) at `variant_resolutions`
+    variants: tuple = ("oracle", "oracle-no-smooth")
+    variant_resolutions: tuple = (128, 256)
     fit_scenes: tuple = ("cave-chair", "thin-structures")
     fit_resolutions: tuple = (128, 160, 192)
     sensor_px: int = 128
@@ -64,6 +68,10 @@ def _truth(ds):
     return data, scene_parts(gt, [m for _, m in objects], data.sensor_origin.cpu().numpy())
 
 
+#: variant -> (Taubin passes, island fraction); None: the fit's
+VARIANTS = {"oracle": (None, None), "oracle-no-smooth": (0, None), "oracle-raw": (0, 0.0)}
+
+
 def _oracle_rows(s: Settings, ctx, scene: str, ds) -> list:
     from benchmarks.oracle_grid import export_oracle, fit_box, oracle_signed_distance
     from torch_recon.recon.config import FitConfig
@@ -75,11 +83,12 @@ def _oracle_rows(s: Settings, ctx, scene: str, ds) -> list:
         box = fit_box(data, cfg.fast, res)
         with ctx.timed() as t_build:
             sd = oracle_signed_distance(parts, box.bbox_min.cpu().numpy(), box.voxel, box.shape)
-        smooths = [("oracle", None)] + ([("oracle-no-smooth", 0)] if res in s.no_smooth_resolutions else [])
-        for method, smooth in smooths:
+        todo = [v for v in s.variants if v == "oracle" or res in s.variant_resolutions]
+        for method in todo:
+            smooth, islands = VARIANTS[method]
             tag = f"{scene}-{method}-{res}"
             with ctx.timed() as t_exp:
-                _, mesh = export_oracle(sd, box, cfg, ctx.work_dir / tag / "mesh", smooth_iterations=smooth)
+                _, mesh = export_oracle(sd, box, cfg, ctx.work_dir / tag / "mesh", smooth, islands)
             ev = runners.evaluate(ctx, ctx.work_dir / tag / "mesh.ply", ds, f"{tag}-eval", timeout=s.timeout_s)
             row = {"method": method, "scene": scene, "wall_s": t_build.wall_s + t_exp.wall_s,
                    "cpu_s": t_build.cpu_s + t_exp.cpu_s, "peak_rss_mb": max(t_build.peak_rss_mb, t_exp.peak_rss_mb),
@@ -137,10 +146,9 @@ def run(s: Settings, ctx) -> list:
 COLUMNS = (("scene", "scene"), ("method", "method"), ("resolution", "grid"), ("voxel_m", "voxel cm", None),
            ("wall_s", "time s", ".1f"), ("peak_rss_mb", "peak MB", ".0f"), ("load_1min", "load", ".1f"),
            ("obj_f1cm", "F@1cm", ".3f"), ("obj_f2cm", "F@2cm", ".3f"), ("obj_f5cm", "F@5cm", ".3f"),
-           ("precision_2cm", "P@2cm", ".3f"), ("visible_recall_2cm", "visible R@2cm", ".3f"),
-           ("hidden_recall_2cm", "hidden R@2cm", ".3f"), ("spurious", "spurious", ".3f"),
-           ("objects_spurious", "objects' spurious", ".3f"), ("depth_l1_m", "L1 m", ".4f"), ("run", "run"))
-METHODS = ("oracle", "oracle-no-smooth", "fast")
+           ("precision_2cm", "P@2cm", ".3f"), ("hidden_recall_2cm", "hidden R@2cm", ".3f"),
+           ("spurious", "spurious", ".3f"), ("depth_l1_m", "L1 m", ".4f"), ("run", "run"))
+METHODS = ("oracle", "oracle-no-smooth", "oracle-raw", "fast")
 
 
 def readme(results: dict) -> str:
@@ -171,7 +179,7 @@ def plot(rows, settings, path):
     fig, ax = plt.subplots(figsize=(8, 5))
     for i, sc in enumerate(scenes):
         col = f"C{i}"
-        for method, style in (("oracle", "-o"), ("oracle-no-smooth", ":s"), ("fast", "--^")):
+        for method, style in (("oracle", "-o"), ("oracle-no-smooth", ":s"), ("oracle-raw", "x"), ("fast", "--^")):
             pts = sorted((100 * r["voxel_m"], r["obj_f2cm"]) for r in rows
                          if r["scene"] == sc and r["method"] == method and r.get("obj_f2cm") is not None)
             if pts:
@@ -194,5 +202,5 @@ def plot(rows, settings, path):
 
 SUITE = Suite("representation", "oracle density grid from the ground truth through the fit's export, per grid "
               "resolution; real fits at finer grids (issue 11: what the representation can reach)",
-              quick=Settings(scenes=("cave-chair",), resolutions=(64,), no_smooth_resolutions=(), fit_scenes=()),
+              quick=Settings(scenes=("cave-chair",), resolutions=(64,), fit_scenes=()),
               full=Settings(), run=run, readme=readme, plot=plot, row_id=("method", "scene", "resolution"))
