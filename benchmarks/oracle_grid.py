@@ -38,6 +38,20 @@ class SolidPart:
     kind: str
 
 
+def _behind_room_part(part: SolidPart, pts, sensor_origin, chunk: int = 1 << 19):
+    """Points (N, 3) whose segment to the sensor crosses the part's sensor-facing faces: behind it."""
+    out = np.zeros(len(pts), bool)
+    for s in range(0, len(pts), chunk):
+        p = pts[s:s + chunk]
+        to_sensor = sensor_origin - p
+        dist = np.linalg.norm(to_sensor, axis=1)
+        _, ray, loc = part.mesh.ray.intersects_id(p, to_sensor / np.maximum(dist, 1e-12)[:, None],
+                                                  multiple_hits=False, return_locations=True)
+        hit = np.linalg.norm(loc - p[ray], axis=1) < dist[ray]
+        out[s + ray[hit]] = True
+    return out
+
+
 def scene_parts(gt_mesh, object_meshes, sensor_origin) -> list[SolidPart]:
     """The GT split into object components and room components (the room keeps its sensor-facing faces)."""
     from torch_recon.evaluation.objects import room_without_objects
@@ -110,9 +124,11 @@ def _band_cells(part: SolidPart, lo, voxel, shape, reach_voxels: int, seed: int)
 
 
 def oracle_signed_distance(parts: list[SolidPart], lo, voxel: float, shape, band_voxels: float = BAND_VOXELS,
-                           seed: int = 0) -> np.ndarray:
+                           seed: int = 0, sensor_origin=None) -> np.ndarray:
     """True signed distance (m, + solid) at the voxel centres lo + (i + 0.5) voxel of a (nx, ny, nz) grid,
-    exact within `band_voxels` of a surface, +-band elsewhere (the sign of the region around it)."""
+    exact within `band_voxels` of a surface, +-band elsewhere (the sign of the region around it).
+    sensor_origin: needed with room parts: a cell near one part's surface may lie deep behind a room part
+    (the side walls' faces continue behind the curved wall), found by a ray to the sensor."""
     from scipy.ndimage import label
 
     shape = tuple(int(n) for n in shape)
@@ -120,13 +136,24 @@ def oracle_signed_distance(parts: list[SolidPart], lo, voxel: float, shape, band
     size = int(np.prod(shape))
     best = np.full(size, -np.inf, np.float32)
     reach = int(np.ceil(band_voxels)) + 1
+    own_cells = []
     for i, part in enumerate(parts):
         cells = _band_cells(part, lo, voxel, shape, reach, seed + i)
+        own_cells.append(cells)
         if len(cells) == 0:
             continue
         centres = lo + (np.stack(np.unravel_index(cells, shape), 1) + 0.5) * voxel
         best[cells] = np.maximum(best[cells], _part_sd(part, centres).astype(np.float32))   # union of solids
     band = float(band_voxels) * voxel
+    near = np.flatnonzero(np.isfinite(best) & (best < band))
+    for part, own in zip(parts, own_cells):
+        if part.kind != "room" or len(near) == 0:
+            continue
+        if sensor_origin is None:
+            raise ValueError("oracle_signed_distance: room parts need the sensor origin")
+        other = near[~np.isin(near, own)]                 # the part's own band has its exact distance
+        centres = lo + (np.stack(np.unravel_index(other, shape), 1) + 0.5) * voxel
+        best[other[_behind_room_part(part, centres, np.asarray(sensor_origin, np.float64))]] = band
     decided = (np.abs(best) <= band) | (best > band)           # exact near a surface, or deep inside a part
     sd = np.where(decided, np.minimum(best, band), np.nan).reshape(shape)
     lab, n = label(~decided.reshape(shape))

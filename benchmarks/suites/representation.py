@@ -82,7 +82,8 @@ def _oracle_rows(s: Settings, ctx, scene: str, ds) -> list:
     for res in s.resolutions:
         box = fit_box(data, cfg.fast, res)
         with ctx.timed() as t_build:
-            sd = oracle_signed_distance(parts, box.bbox_min.cpu().numpy(), box.voxel, box.shape)
+            sd = oracle_signed_distance(parts, box.bbox_min.cpu().numpy(), box.voxel, box.shape,
+                                        sensor_origin=data.sensor_origin.cpu().numpy())
         todo = [v for v in s.variants if v == "oracle" or res in s.variant_resolutions]
         for method in todo:
             smooth, islands = VARIANTS[method]

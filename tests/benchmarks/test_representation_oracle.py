@@ -59,7 +59,7 @@ def test_behind_a_room_wall_is_solid():
     facing = ((sensor - wall.triangles_center) * wall.face_normals).sum(1) > 1e-6
     part = SolidPart(wall.submesh([np.flatnonzero(facing)], append=True), "room")
     box = GridBox(np.full(3, -0.5), np.full(3, 0.5), 50)           # 2 cm voxels
-    sd = oracle_signed_distance([part], box.bbox_min.numpy(), box.voxel, box.shape)
+    sd = oracle_signed_distance([part], box.bbox_min.numpy(), box.voxel, box.shape, sensor_origin=sensor)
     y = box.bbox_min[1].item() + (np.arange(box.shape[1]) + 0.5) * box.voxel
     column = sd[25, :, 25]
     assert np.all(column[y > 0.33] > 0) and np.all(column[y < 0.29] < 0)
