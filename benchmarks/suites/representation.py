@@ -145,7 +145,7 @@ def run(s: Settings, ctx) -> list:
 
 
 COLUMNS = (("scene", "scene"), ("method", "method"), ("resolution", "grid"), ("voxel_m", "voxel cm", None),
-           ("wall_s", "time s", ".1f"), ("peak_rss_mb", "peak MB", ".0f"), ("load_1min", "load", ".1f"),
+           ("wall_s", "time s", ".1f"), ("cpu_s", "CPU s", ".0f"), ("peak_rss_mb", "peak MB", ".0f"), ("load_1min", "load", ".1f"),
            ("obj_f1cm", "F@1cm", ".3f"), ("obj_f2cm", "F@2cm", ".3f"), ("obj_f5cm", "F@5cm", ".3f"),
            ("precision_2cm", "P@2cm", ".3f"), ("hidden_recall_2cm", "hidden R@2cm", ".3f"),
            ("spurious", "spurious", ".3f"), ("depth_l1_m", "L1 m", ".4f"), ("run", "run"))
