@@ -145,7 +145,8 @@ def run(s: Settings, ctx) -> list:
 
 
 COLUMNS = (("scene", "scene"), ("method", "method"), ("resolution", "grid"), ("voxel_m", "voxel cm", None),
-           ("wall_s", "time s", ".1f"), ("cpu_s", "CPU s", ".0f"), ("peak_rss_mb", "peak MB", ".0f"), ("load_1min", "load", ".1f"),
+           ("wall_s", "time s", ".1f"), ("cpu_s", "CPU s", ".0f"), ("peak_rss_mb", "peak MB", ".0f"),
+           ("load_1min", "load", ".1f"),
            ("obj_f1cm", "F@1cm", ".3f"), ("obj_f2cm", "F@2cm", ".3f"), ("obj_f5cm", "F@5cm", ".3f"),
            ("precision_2cm", "P@2cm", ".3f"), ("hidden_recall_2cm", "hidden R@2cm", ".3f"),
            ("spurious", "spurious", ".3f"), ("depth_l1_m", "L1 m", ".4f"), ("run", "run"))
@@ -180,11 +181,12 @@ def plot(rows, settings, path):
     fig, ax = plt.subplots(figsize=(8, 5))
     for i, sc in enumerate(scenes):
         col = f"C{i}"
-        for method, style in (("oracle", "-o"), ("oracle-no-smooth", ":s"), ("oracle-raw", "x"), ("fast", "--^")):
+        for method, style in (("oracle", "-o"), ("oracle-no-smooth", "s"), ("oracle-raw", "x"), ("fast", "--^")):
             pts = sorted((100 * r["voxel_m"], r["obj_f2cm"]) for r in rows
                          if r["scene"] == sc and r["method"] == method and r.get("obj_f2cm") is not None)
             if pts:
-                ax.plot(*zip(*pts), style, color=col, label=f"{sc} {method}", ms=5, mfc="none" if method != "oracle" else col)
+                ax.plot(*zip(*pts), style, color=col, label=f"{sc} {method}", ms=5,
+                        mfc=col if method == "oracle" else "none")
         v128 = [100 * r["voxel_m"] for r in rows if r["scene"] == sc and r.get("resolution") == 128]
         if objects.get(sc) is not None and v128:
             ax.plot(v128[0], objects[sc], "*", color=col, ms=13, mec="k", label=f"{sc} fast (objects.json)")
