@@ -71,7 +71,11 @@ class FastConfig:
                                       # the chair) are the same class as those it tears (wall ramps)
     anchor_weight: float = 0.0        # prior: this x sum of squared raw change on those voxels (0.01: = the start)
     freeze_dilate_voxels: int = 1     # the frozen surface band reaches this many voxels beyond the ramp
-    tv_weight: float = 1e-4           # total-variation smoothness on the raw density
+    normal_weight: float = 0.01       # surface prior (recon/smoothness.py): this x sum over neighbouring surface
+                                      # cells of |n_a - n_b|^2 (n: unit gradient of raw); a sum, so a lump's gradient
+                                      # (~0.3 x weight for 2 raw units) passes Adam's eps. 5 scenes 128 px: floor
+                                      # tilt p90 3.9-4.7 -> 2.3-3.2 deg, F@2cm -0.008..+0.038, L1 -1.6..+2.0 mm; 0: off
+    normal_max_angle_deg: float = 30.0  # ... pairs whose normals differ by more (edges, thin parts) are not smoothed
     lr: float = 0.05                  # Adam on raw density; with the ramp at 4 per voxel the surface moves
                                       # at most lr / 4 voxel a step (0.2 with the old slope 16, same motion).
                                       # Session 2 (slope 16): 0.01 left the initial field
@@ -176,6 +180,11 @@ class FitConfig:
                                                          f"got {self.fast.footprint_voxels}")
         if self.fast.trim_hull_voxels < 0:
             raise SettingsError("fast.trim_hull_voxels", f"expected an integer >= 0 (0: off), got {self.fast.trim_hull_voxels}")
+        if not self.fast.normal_weight >= 0:
+            raise SettingsError("fast.normal_weight", f"expected a weight >= 0 (0: off), got {self.fast.normal_weight}")
+        if not 0 < self.fast.normal_max_angle_deg <= 90:
+            raise SettingsError("fast.normal_max_angle_deg",
+                                f"expected an angle in (0, 90] degrees, got {self.fast.normal_max_angle_deg}")
         if self.fast.footprint_views < 1:
             raise SettingsError("fast.footprint_views", f"expected an integer >= 1, got {self.fast.footprint_views}")
         check_device_name(self.device)

@@ -288,6 +288,7 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     fraction of a voxel (trilinear interpolation keeps a linear ramp linear); behind a visible surface
     a lit voxel stays free (thin parts keep their thickness).
     """
+    from .beyond_view import lit_side_of_hull, out_of_view_spots, unneeded_beside_view
     from .unobserved import bounding_planes, shell_signed_distance
 
     label, shadow_count = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m,
@@ -313,6 +314,12 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
         hull = hull if view is None else hull & view
         trimmed = unneeded_hull(free, hull, shadow_count, band, cfg.trim_hull_voxels)
         free = free | trimmed
+    beyond = out_of_view_spots(data) if view is not None else torch.zeros(0, dtype=torch.long)
+    off = max(secondary_offset_m, cfg.surface_margin_voxels * box.voxel)     # as evidence_grid's secondary rays
+    if len(beyond) and cfg.trim_hull_voxels > 0:    # shadow hull beside the view no light stopped at (beyond_view.py)
+        excess = unneeded_beside_view(data, box, free, ~free & view, beyond, off, cfg.step_voxels * box.voxel,
+                                      cfg.trim_hull_voxels)
+        free, trimmed = free | excess, excess if trimmed is None else trimmed | excess
     occupied = ~free if view is None else ~free & view
     raw = torch.where(occupied, torch.tensor(cfg.raw_occupied, device=dev), torch.tensor(cfg.raw_free, device=dev))
     b = surface_offset(cfg.density_scale, box.voxel, max(cfg.surface_slope, 1e-3))
@@ -329,6 +336,8 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
         # completed empty space counts as free for the mesh only next to a completed plane: the shadow
         # hull's boundary at the edge of the view stays unreported
         mesh_free = free | (unobserved & (shell < 0) & (shell > -cfg.plane_free_band_voxels * box.voxel))
+        if len(beyond):     # ... and the lit side of the hull beside the view (beyond_view.py)
+            mesh_free = mesh_free | lit_side_of_hull(data, box, occupied, beyond, off, cfg.step_voxels * box.voxel)
     if sd is not None:
         near = torch.isfinite(sd) & ((label != 3) | (sd <= 0.5 * box.voxel)) & (label != RESTORED)
         raw = torch.where(near, ramp(sd), raw)

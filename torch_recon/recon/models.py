@@ -18,6 +18,7 @@ from .init import in_view, initial_grid, scene_bbox
 from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total_loss
 from .renderer import render_field, render_pruned, secondary_rays
 from .sampler import importance_positions, merged_intervals, ray_box, uniform_intervals
+from .smoothness import NormalConsistencyPrior
 from .visible_surface_init import in_front_of_visible_surface, surface_offset, visible_surface
 
 
@@ -70,6 +71,7 @@ class FastModel(ReconstructionModel):
         self.level = 0 if self.fc.coarse_fraction > 0 and self.fc.coarse_resolution < self.fc.resolution else 1
         self.grid, self.free = self._initial(self.fc.coarse_resolution if self.level == 0 else self.fc.resolution)
         self._hook = None
+        self._normal_cells = None
         self._set_measured_mask(self.grid.raw)
         self.occupancy = None
         self.refresh_occupancy()
@@ -150,6 +152,7 @@ class FastModel(ReconstructionModel):
             self._hook = self.grid.raw.register_hook(lambda g: g * mask)
 
     def refresh_occupancy(self):
+        self._normal_prior = None       # the surface band moves with the field
         with torch.no_grad():
             tau = self.grid.density_scale * F.softplus(self.grid.raw) * self.grid.box.voxel
             occ = F.max_pool3d((tau > self.fc.occupancy_threshold).float(), 3, 1, 1) > 0
@@ -159,6 +162,14 @@ class FastModel(ReconstructionModel):
             raw_lo = -F.max_pool3d(-self.grid.raw, 3, 1, 1)
             tau_lo = self.grid.density_scale * F.softplus(raw_lo) * self.grid.box.voxel
             self.tau_step = (tau_lo[0, 0] * self.fc.step_voxels).permute(2, 1, 0).contiguous()
+
+    def normal_prior(self) -> NormalConsistencyPrior:
+        """The surface-normal prior on the current surface band (rebuilt with the occupancy)."""
+        if self._normal_prior is None:
+            iso = surface_offset(self.grid.density_scale, self.grid.box.voxel, max(self.fc.surface_slope, 1.0))
+            cells, self._normal_cells = self._normal_cells, None     # from a checkpoint: the same cells as before
+            self._normal_prior = NormalConsistencyPrior(self.grid.raw, iso, self.fc.normal_max_angle_deg, cells)
+        return self._normal_prior
 
     def before_step(self, step: int, total: int) -> bool:
         """Coarse -> fine switch and occupancy refresh; True when the optimiser was rebuilt."""
@@ -189,10 +200,10 @@ class FastModel(ReconstructionModel):
 
     def loss(self, idx, step, total, gen):
         loss, stats = pair_loss(self, self.data, idx, step, total, self.cfg, self.offset)
-        if self.fc.tv_weight > 0:
-            r = self.grid.raw
-            tv = sum(((r.diff(dim=d)) ** 2).mean() for d in (2, 3, 4))
-            loss = loss + self.fc.tv_weight * tv
+        if self.fc.normal_weight > 0:
+            prior = self.fc.normal_weight * self.normal_prior()(self.grid.raw)
+            stats["normal"] = float(prior.detach())
+            loss = loss + prior
         if self.fc.anchor_weight > 0 and self.trainable is not None:
             dev = (self.grid.raw - self.raw_start) * ~self.trainable
             loss = loss + self.fc.anchor_weight * (dev * dev).sum()
@@ -242,7 +253,8 @@ class FastModel(ReconstructionModel):
         return {"level": self.level, "raw": self.grid.raw.detach().clone(),
                 "bbox_min": self.grid.box.bbox_min.cpu(), "voxel": self.grid.box.voxel,
                 "shape": list(self.grid.box.shape), "free": self.free.clone(),
-                "trainable": self.trainable, "raw_start": self.raw_start, "occupancy": self.occupancy.clone(), "tau_step": self.tau_step.clone(), "optimizer": self.optimizer.state_dict()}
+                "trainable": self.trainable, "raw_start": self.raw_start, "occupancy": self.occupancy.clone(), "tau_step": self.tau_step.clone(), "optimizer": self.optimizer.state_dict(),
+                "normal_cells": None if self._normal_prior is None else self._normal_prior.cells.clone()}
 
     def load_state_dict(self, st):
         self.level = int(st["level"])
@@ -255,6 +267,8 @@ class FastModel(ReconstructionModel):
         r0 = st.get("raw_start")
         self.raw_start = None if r0 is None else r0.to(self.device)
         self.occupancy = st["occupancy"].to(self.device)
+        self._normal_prior = None       # rebuilt on the surface cells the run had (resume == uninterrupted)
+        self._normal_cells = st.get("normal_cells")
         self.tau_step = st["tau_step"].to(self.device)
         self.make_optimizer()
         self.optimizer.load_state_dict(st["optimizer"])
