@@ -2,7 +2,7 @@
 
 The "oracle" field is the fit's start-field ramp (`fast.surface_slope` raw units per voxel across the
 surface, raw value `surface_offset(...)` at it, clamped to [raw_free, raw_occupied]) evaluated on the
-TRUE signed distance at the voxel centres of the fit's own box (`scene_bbox` + `GridBox`), then
+TRUE signed distance at the voxel centres of the fit's own box (`init.grid_bbox` + `GridBox`), then
 exported through the fit's path (`FastModel.surface_volume`, `api.export_volume`: marching cubes at
 its level, faces facing free space only, Taubin smoothing, island cleanup). Free space for the export
 is the truly empty space (the best any measurement could say).
@@ -191,18 +191,6 @@ def oracle_surface_volume(sd: np.ndarray, voxel: float, fast_config):
     box = GridBox.exact(np.zeros(3), voxel, sd.shape)
     grid = DensityGrid.from_xyz(box, torch.from_numpy(raw.astype(np.float32)), fc.density_scale)
     return FastModel.surface_volume(types.SimpleNamespace(fc=fc, grid=grid))
-
-
-def fit_box(data, fast_config, resolution: int):
-    """The fit's box for `resolution` voxels: as FastModel.__init__ (scene_bbox grown by
-    bbox_margin_voxels fine voxels, then GridBox)."""
-    from torch_recon.recon.fields import GridBox
-    from torch_recon.recon.init import scene_bbox
-
-    lo, hi = scene_bbox(data, 0.0)
-    fine_voxel = float(np.max(hi - lo)) / resolution
-    lo, hi = scene_bbox(data, fast_config.bbox_margin_voxels * fine_voxel)
-    return GridBox(lo, hi, resolution)
 
 
 def export_oracle(sd, box, fit_config, out_path, smooth_iterations=None, min_island_fraction=None, metadata=None):

@@ -73,14 +73,16 @@ VARIANTS = {"oracle": (None, None), "oracle-no-smooth": (0, None), "oracle-raw":
 
 
 def _oracle_rows(s: Settings, ctx, scene: str, ds) -> list:
-    from benchmarks.oracle_grid import export_oracle, fit_box, oracle_signed_distance
+    from benchmarks.oracle_grid import export_oracle, oracle_signed_distance
     from torch_recon.recon.config import FitConfig
+    from torch_recon.recon.fields import GridBox
+    from torch_recon.recon.init import grid_bbox
 
     cfg = FitConfig()
     data, parts = _truth(ds)
     rows = []
     for res in s.resolutions:
-        box = fit_box(data, cfg.fast, res)
+        box = GridBox(*grid_bbox(data, res, cfg.fast.bbox_margin_voxels), res)     # the fit's box at `res`
         with ctx.timed() as t_build:
             sd = oracle_signed_distance(parts, box.bbox_min.cpu().numpy(), box.voxel, box.shape,
                                         sensor_origin=data.sensor_origin.cpu().numpy())

@@ -48,6 +48,14 @@ def scene_bbox(data: RayData, margin_m: float, quantile: float = 0.001):
     return lo.astype(np.float32), hi.astype(np.float32)
 
 
+def grid_bbox(data: RayData, resolution: int, margin_voxels: float):
+    """The fast fit's box corners (lo, hi): `scene_bbox` grown by `margin_voxels` voxels of a grid with
+    `resolution` voxels along the longest side of the ungrown box (fast.resolution and bbox_margin_voxels)."""
+    lo, hi = scene_bbox(data, 0.0)
+    voxel = float(np.max(hi - lo)) / resolution
+    return scene_bbox(data, margin_voxels * voxel)
+
+
 def _marching_cells(box: GridBox, origins, dirs, near, far, step, chunk_samples: int = 1 << 20,
                     core: float = 0.5):
     """The voxels of the fixed-step marching samples (interval midpoints, as `marching_intervals`) of each
@@ -301,7 +309,7 @@ def in_view(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_ax
     return ok.reshape(box.shape)
 
 
-def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0.0, view=None):
+def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0.0, view=None, surface=None):
     """The fast mode's starting field (cfg: FastConfig) and the voxels the mesh may face (nx, ny, nz) bool.
 
     Known free (seen through by the sensor or crossed by a lit secondary ray): empty. Everything else
@@ -313,6 +321,7 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     linear ramp in the point-to-plane signed distance puts the surface at the measured depth to a
     fraction of a voxel (trilinear interpolation keeps a linear ramp linear); behind a visible surface
     a lit voxel stays free (thin parts keep their thickness).
+    surface: `visible_surface(data, box)` (points, normals) when already computed.
     """
     from .beyond_view import lit_side_of_hull, out_of_view_spots, unneeded_beside_view
     from .unobserved import bounding_planes, shell_signed_distance
@@ -324,7 +333,7 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
                                         nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface)
     free = (label == 2) | (label == 3)
     dev = data.pixel_dirs.device
-    surface = visible_surface(data, box)
+    surface = visible_surface(data, box) if surface is None else surface
     sd = (surface_signed_distance(data, box, cfg.surface_half_width_voxels, surface=surface).to(dev)
           if cfg.surface_slope > 0 else None)
     shell = None

@@ -14,7 +14,7 @@ import torch.nn.functional as F
 from .config import FitConfig
 from .data import RayData
 from .fields import DensityGrid, GridBox
-from .init import in_view, initial_grid, scene_bbox
+from .init import grid_bbox, in_view, initial_grid
 from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total_loss
 from .renderer import render_field, render_pruned, secondary_rays
 from .sampler import importance_positions, merged_intervals, ray_box, uniform_intervals
@@ -64,10 +64,8 @@ class FastModel(ReconstructionModel):
         self.data, self.cfg, self.fc = data, cfg, cfg.fast
         self.meta = meas_meta
         self.device = data.pixel_dirs.device
-        lo, hi = scene_bbox(data, 0.0)
-        fine_voxel = float(np.max(hi - lo)) / self.fc.resolution
-        lo, hi = scene_bbox(data, self.fc.bbox_margin_voxels * fine_voxel)
-        self.bbox = (lo, hi)
+        self.bbox = grid_bbox(data, self.fc.resolution, self.fc.bbox_margin_voxels)
+        self._surface = None    # (voxel, visible surface) of the latest grid: the start field and the mesh share it
         self.level = 0 if self.fc.coarse_fraction > 0 and self.fc.coarse_resolution < self.fc.resolution else 1
         self.grid, self.free = self._initial(self.fc.coarse_resolution if self.level == 0 else self.fc.resolution)
         self._hook = None
@@ -80,7 +78,15 @@ class FastModel(ReconstructionModel):
     def _initial(self, res=None, box=None):
         """The start field and its free space on `box`, or on a new box of `res` voxels along the longest side."""
         box = GridBox(self.bbox[0], self.bbox[1], res).to(self.device) if box is None else box
-        return initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box))
+        return initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box),
+                            self.visible_surface(box))
+
+    def visible_surface(self, box):
+        """`visible_surface` (points, normals) for `box`; it depends on the box's voxel size only, so it
+        is computed once per grid level."""
+        if self._surface is None or self._surface[0] != box.voxel:
+            self._surface = (box.voxel, visible_surface(self.data, box))
+        return self._surface[1]
 
     @property
     def skip_warmup(self) -> bool:
@@ -122,12 +128,12 @@ class FastModel(ReconstructionModel):
     def free_evidence(self) -> np.ndarray:
         """Voxels (nx, ny, nz) the measurements show empty, on the current grid (for the mesh export)."""
         if tuple(self.free.shape) != tuple(self.grid.box.shape):
-            self.free = initial_grid(self.data, self.grid.box, self.fc, self.offset, self._view(self.grid.box))[1]
+            self.free = self._initial(box=self.grid.box)[1]
         free = self.free
         if self.fc.mesh_front_of_visible:   # measured surfaces keep their faces where no camera ray passed
             box = self.grid.box
             vol, iso = self.surface_volume()
-            front = in_front_of_visible_surface(visible_surface(self.data, box), box, torch.from_numpy(vol < iso))
+            front = in_front_of_visible_surface(self.visible_surface(box), box, torch.from_numpy(vol < iso))
             free = free | front.to(free.device)
         return free.cpu().numpy()
 
