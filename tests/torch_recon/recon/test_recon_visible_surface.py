@@ -69,3 +69,38 @@ def test_floor_keeps_its_faces_where_no_camera_ray_passed():
     assert floor_area(with_front) > inner_area
     # flat: every kept upward face lies on the floor plane
     assert np.abs(with_front.triangles_center[up(with_front), 2] - Z_FLOOR).max() < 1e-3
+
+
+def test_fast_model_box_is_grid_bbox_and_its_visible_surface_is_computed_once(monkeypatch):
+    """The fit's box is `init.grid_bbox`'s (the representation oracle builds its box from it), and the start
+    field and the mesh's free space share one visible surface per grid level (same result as computing it
+    for each)."""
+    import torch_recon.recon.init as init
+    import torch_recon.recon.models as models
+    from tests.support.recon_fixtures import box_floor_measurements
+    from tests.torch_recon.recon.test_recon_fit import small_config
+    from torch_recon.recon.data import build_ray_data
+    from torch_recon.recon.init import grid_bbox, initial_grid
+
+    meas = box_floor_measurements(32)
+    meta = {"camera_to_world": np.asarray(meas.camera_to_world), "fov_rad": meas.fov_rad, "fov_axis": meas.fov_axis}
+    cfg = small_config(steps=0)
+    data = build_ray_data(meas)
+    calls = []
+    real = models.visible_surface
+    for module in (init, models):
+        monkeypatch.setattr(module, "visible_surface", lambda d, box: calls.append(box.voxel) or real(d, box))
+    model = models.FastModel(data, cfg, meta)
+    res = cfg.fast.resolution
+    box = GridBox(*grid_bbox(data, res, cfg.fast.bbox_margin_voxels), res)
+    assert box.shape == model.grid.box.shape and box.voxel == model.grid.box.voxel
+    assert torch.equal(box.bbox_min, model.grid.box.bbox_min.cpu())
+    free = model.free_evidence()
+    assert calls == [box.voxel]
+    monkeypatch.undo()
+    # the same free space and start field as without the shared surface
+    start, mesh_free = initial_grid(data, box, cfg.fast, model.offset, model._view(box))
+    assert torch.equal(start.raw, model.grid.raw.detach()) and torch.equal(mesh_free, model.free)
+    vol, iso = model.surface_volume()
+    front = in_front_of_visible_surface(real(data, box), box, torch.from_numpy(vol < iso))
+    assert np.array_equal(free, (mesh_free | front).numpy()) and (free & ~mesh_free.numpy()).any()
