@@ -43,6 +43,9 @@ class FastConfig:
 
     coarse_resolution: int = 64       # voxels along the longest bbox side, first level
     resolution: int = 128             # final level (coarse to fine: the coarse result is upsampled)
+                                      # 160 (session 8, six scenes): object F@2cm +0.002..+0.057 but 1.1-3.3 x the
+                                      # test-view holes (room junctions, already in the start), lamp shade's hidden
+                                      # back lost (hidden R 0.815 -> 0.603); kept 128 (docs/reconstruction.md)
     coarse_fraction: float = 0.0      # fraction of the steps on the coarse level (0: start fine; benchmark)
     bbox_margin_voxels: float = 1.5   # bbox = robust extent of the observed surfaces + this margin
     density_scale: float = 50.0       # sigma = density_scale * softplus(raw), in 1 / m
