@@ -177,6 +177,18 @@ class Context:
     def log(self, msg: str) -> None:
         self._log(msg)
 
+    def keep(self, row: dict) -> dict:
+        """Append the row to work_dir/rows.jsonl (partial results survive an interrupted run); returns it."""
+        import json
+        with open(self.work_dir / "rows.jsonl", "a") as f:
+            f.write(json.dumps(row) + "\n")
+        return row
+
+    @staticmethod
+    def load_1min() -> float:
+        """The 1-minute load average now: a wall-clock budget trains fewer steps on a busy machine."""
+        return round(os.getloadavg()[0], 2)
+
     timed = staticmethod(timed)
 
     def run_cli(self, args, timeout: float | None = None, check: bool = True) -> CliRun:

@@ -13,7 +13,6 @@ recall@2cm >= 0.85, spurious <= 0.02, no degenerate faces.
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass
 
 from benchmarks.harness import Suite, runners
@@ -49,16 +48,6 @@ def _object_fields(ctx, eval_dir: str) -> dict:
 FIELDS = ("depth_l1_m", "depth_psnr_db", "n_test_views")
 
 
-def _load() -> float:
-    """The 1-minute load average when a row ends: a wall-clock budget trains fewer steps on a busy machine."""
-    return round(os.getloadavg()[0], 2)
-
-
-def _keep(ctx, row: dict) -> dict:
-    """Append the row to work_dir/rows.jsonl: partial results survive an interrupted run."""
-    with open(ctx.work_dir / "rows.jsonl", "a") as f:
-        f.write(json.dumps(row) + "\n")
-    return row
 
 
 def run(s: Settings, ctx) -> list:
@@ -82,14 +71,14 @@ def run(s: Settings, ctx) -> list:
                     eval_dir = f"{out}-eval"
             except runners.Refused as exc:      # also NoSurface: a short platonerf budget may leave the field empty
                 rows.append(runners.refused_row(method, scene, exc, note=note, steps=exc.times.get("steps"),
-                                                load_1min=_load()))
-                _keep(ctx, rows[-1])
+                                                load_1min=ctx.load_1min()))
+                ctx.keep(rows[-1])
                 continue
             rows.append({"method": method, "scene": scene, **{k: res.get(k) for k in TIMES},
                          "steps": res.get("steps"), "stopped": res.get("stopped"), "train_s": res.get("train_s"),
-                         "load_1min": _load(), **{k: res.get(k) for k in FIELDS}, **_object_fields(ctx, eval_dir),
+                         "load_1min": ctx.load_1min(), **{k: res.get(k) for k in FIELDS}, **_object_fields(ctx, eval_dir),
                          "note": note})
-            r = _keep(ctx, rows[-1])
+            r = ctx.keep(rows[-1])
             ctx.log(f"  {scene} {method}: L1 {fmt(r['depth_l1_m'])} m, F@2cm {fmt(r['obj_f2cm'])}, "
                     f"hidden R@2cm {fmt(r['hidden_recall_2cm'])}, spurious {fmt(r['spurious'])}, "
                     f"degenerate {r['degenerate_faces']}, {fmt(r['wall_s'])} s")

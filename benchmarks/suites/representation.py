@@ -16,7 +16,6 @@ Part 2, `fast`: real fits at `fit_resolutions` (`--set fast.resolution=N`, 2 thr
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass
 
 from benchmarks.harness import Suite, runners
@@ -38,17 +37,6 @@ class Settings:
     sensor_px: int = 128
     spots: int = 16
     timeout_s: float = 1800.0
-
-
-def _load() -> float:
-    return round(os.getloadavg()[0], 2)
-
-
-def _keep(ctx, row: dict) -> dict:
-    """Append the row to work_dir/rows.jsonl: partial results survive an interrupted run."""
-    with open(ctx.work_dir / "rows.jsonl", "a") as f:
-        f.write(json.dumps(row) + "\n")
-    return row
 
 
 def _truth(ds):
@@ -97,9 +85,9 @@ def _oracle_rows(s: Settings, ctx, scene: str, ds) -> list:
                    "cpu_s": t_build.cpu_s + t_exp.cpu_s, "peak_rss_mb": max(t_build.peak_rss_mb, t_exp.peak_rss_mb),
                    "resolution": res, "voxel_m": box.voxel, "grid": list(box.shape),
                    "build_s": t_build.wall_s, "export_s": t_exp.wall_s, "evaluate_s": ev["evaluate_wall_s"],
-                   "faces": len(mesh.faces), "load_1min": _load(), "depth_l1_m": ev["depth_l1_m"],
+                   "faces": len(mesh.faces), "load_1min": ctx.load_1min(), "depth_l1_m": ev["depth_l1_m"],
                    **_fields(ctx, f"{tag}-eval")}
-            rows.append(_keep(ctx, row))
+            rows.append(ctx.keep(row))
             _log(ctx, row)
     return rows
 
@@ -111,15 +99,15 @@ def _fit_rows(s: Settings, ctx, scene: str, ds) -> list:
         try:
             r = runners.fit(ctx, ds, tag, mode="fast", sets=[f"fast.resolution={res}"], timeout=s.timeout_s)
         except runners.Refused as exc:
-            rows.append(_keep(ctx, runners.refused_row("fast", scene, exc, resolution=res, load_1min=_load())))
+            rows.append(ctx.keep(runners.refused_row("fast", scene, exc, resolution=res, load_1min=ctx.load_1min())))
             continue
         vox = json.loads((ctx.work_dir / tag / "mesh.mesh.json").read_text())["volume"]
         voxel = (vox["bbox_max"][0] - vox["bbox_min"][0]) / (vox["shape"][0] - 1)   # export box = voxel centres
         row = {"method": "fast", "scene": scene, **{k: r.get(k) for k in runners.TIMES}, "resolution": res,
                "voxel_m": voxel, "grid": vox["shape"], "steps": r.get("steps"), "train_s": r.get("train_s"),
-               "evaluate_s": r.get("evaluate_wall_s"), "load_1min": _load(), "depth_l1_m": r.get("depth_l1_m"),
+               "evaluate_s": r.get("evaluate_wall_s"), "load_1min": ctx.load_1min(), "depth_l1_m": r.get("depth_l1_m"),
                **_fields(ctx, f"{tag}-eval")}
-        rows.append(_keep(ctx, row))
+        rows.append(ctx.keep(row))
         _log(ctx, row)
     return rows
 

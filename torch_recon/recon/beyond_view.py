@@ -57,21 +57,28 @@ def out_of_view_spots(data: RayData) -> torch.Tensor:
     return torch.nonzero(~in_camera_view(data, data.spot_points)).reshape(-1)
 
 
+def _shadowed_samples(data: RayData, box: GridBox, flat_hull: torch.Tensor, spots: torch.Tensor, off: float,
+                      step: float, chunk_samples: int):
+    """Per chunk of the `spots`' shadowed segments, samples ordered from x to the spot: (voxel index (long,
+    0 where outside the box), inside the box, inside the hull)."""
+    from .init import _marching_cells, _segments
+
+    seg = _segments(data, data.shadowed & torch.isin(data.pair_spot, spots), off)
+    if seg[0].shape[0] == 0:
+        return
+    for _, flat, keep in _marching_cells(box, *seg, step, chunk_samples):
+        flat = flat.where(keep, 0.0).long()
+        yield flat, keep, keep & flat_hull[flat]
+
+
 def lit_side_of_hull(data: RayData, box: GridBox, hull: torch.Tensor, spots: torch.Tensor, off: float, step: float,
                      chunk_samples: int = 1 << 20) -> torch.Tensor:
     """Voxels (nx, ny, nz) bool not in `hull` where a shadowed segment of one of the `spots` last passes before it
     enters `hull` on its way from the spot: the light reached them and stopped at the hull, so the hull's
     surface faces them (the lit side of a shadow caster)."""
-    from .init import _marching_cells, _segments
-
     out = torch.zeros(int(np.prod(box.shape)), dtype=torch.bool, device=hull.device)
-    seg = _segments(data, data.shadowed & torch.isin(data.pair_spot, spots), off)
-    if seg[0].shape[0] == 0:
-        return out.reshape(box.shape)
     flat_hull = hull.reshape(-1)
-    for _, flat, keep in _marching_cells(box, *seg, step, chunk_samples):   # samples ordered from x to the spot
-        flat = flat.where(keep, 0.0).long()
-        inside = keep & flat_hull[flat]
+    for flat, keep, inside in _shadowed_samples(data, box, flat_hull, spots, off, step, chunk_samples):
         n = flat.shape[1]
         order = torch.arange(n, device=flat.device).expand_as(flat)
         last = torch.where(inside, order, torch.full_like(order, -1)).amax(1)     # the hull sample nearest the spot
@@ -91,16 +98,8 @@ def first_blockers(data: RayData, box: GridBox, hull: torch.Tensor, spots: torch
     """Voxels of `hull` (bool (nx, ny, nz)) in the first run of hull voxels that a shadowed segment of the `spots`
     meets coming from its spot: the light stopped there; hull further along the segment (past free space)
     is not needed by it."""
-    from .init import _marching_cells, _segments
-
     out = torch.zeros(int(np.prod(box.shape)), dtype=torch.bool, device=hull.device)
-    seg = _segments(data, data.shadowed & torch.isin(data.pair_spot, spots), off)
-    if seg[0].shape[0] == 0:
-        return out.reshape(box.shape)
-    flat_hull = hull.reshape(-1)
-    for _, flat, keep in _marching_cells(box, *seg, step, chunk_samples):   # samples ordered from x to the spot
-        flat = flat.where(keep, 0.0).long()
-        inside = keep & flat_hull[flat]
+    for flat, keep, inside in _shadowed_samples(data, box, hull.reshape(-1), spots, off, step, chunk_samples):
         order = torch.arange(flat.shape[1], device=flat.device).expand_as(flat)
         last = torch.where(inside, order, torch.full_like(order, -1)).amax(1, keepdim=True)
         gap = torch.where(keep & ~inside & (order < last), order, torch.full_like(order, -1)).amax(1, keepdim=True)
