@@ -19,7 +19,7 @@ endif
 PIP    := $(PY) -m pip install --disable-pip-version-check --progress-bar on
 STAMP  := $(VENV)/.installed-$(TORCH)-$(shell cat pyproject.toml requirements/*.txt 2>/dev/null | cksum | cut -d' ' -f1)
 DEMO_OUT ?= out/demo
-DEMO_RES ?= 64
+DEMO_RES ?= 128
 
 .PHONY: venv torch demo test test-all bench bench-quick addon-zip clean
 
