@@ -126,6 +126,15 @@ def all_specs(cls, prefix: str = "") -> list:
     return out
 
 
+def _unknown(cls, name: str, by_name: dict, where: str = "known here") -> str:
+    """The message for an unknown key: what replaced it, when the section lists it in REMOVED_SETTINGS
+    (a saved config from an older version), else the keys the section knows."""
+    removed = getattr(cls, "REMOVED_SETTINGS", {}).get(name)
+    if removed:
+        return f"removed setting: {removed}"
+    return f"unknown setting; {where}: {', '.join(sorted(by_name))}"
+
+
 def find_spec(cls, key: str) -> Spec:
     node, parts = cls, key.split(".")
     for i, part in enumerate(parts):
@@ -133,7 +142,7 @@ def find_spec(cls, key: str) -> Spec:
         s = by_name.get(part)
         if s is None:
             where = f"section {'.'.join(parts[:i])}" if i else "settings"
-            raise SettingsError(key, f"unknown setting; {where} has: {', '.join(sorted(by_name))}")
+            raise SettingsError(key, _unknown(node, part, by_name, where + " has"))
         if i < len(parts) - 1:
             if not s.is_section:
                 raise SettingsError(key, f"{s.key} is a value, not a section")
@@ -225,7 +234,7 @@ def from_dict(cls, data: dict, source: str = "", prefix: str = ""):
     by_name = {s.name: s for s in specs(cls, prefix)}
     unknown = sorted(set(data) - set(by_name))
     if unknown:
-        raise SettingsError(prefix + unknown[0], f"unknown setting; known here: {', '.join(sorted(by_name))}", source)
+        raise SettingsError(prefix + unknown[0], _unknown(cls, unknown[0], by_name), source)
     kw = {}
     for name, value in data.items():
         s = by_name[name]

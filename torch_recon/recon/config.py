@@ -41,6 +41,11 @@ class LossConfig:
 class FastConfig:
     """Explicit multi-resolution density grid."""
 
+    #: keys older versions wrote (a saved fit.json / --config) -> what replaced them (settings.from_dict says so)
+    REMOVED_SETTINGS = {"tv_weight": "replaced by fast.normal_weight (session 8: the total-variation term did nothing)",
+                        "footprint_voxels": "removed in session 8 (ray-footprint carving kept no legs; docs/reconstruction.md)",
+                        "footprint_views": "removed in session 8 (ray-footprint carving kept no legs; docs/reconstruction.md)"}
+
     coarse_resolution: int = 64       # voxels along the longest bbox side, first level
     resolution: int = 128             # final level (coarse to fine: the coarse result is upsampled)
                                       # 160 (session 8, six scenes): object F@2cm +0.002..+0.057 but 1.1-3.3 x the

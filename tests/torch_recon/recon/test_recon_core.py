@@ -153,4 +153,9 @@ def test_config_round_trip_and_errors():
         FitConfig(mode="nerf")
     with pytest.raises(ValueError, match="unknown setting"):
         FitConfig.from_dict({"fast": {"resolutoin": 3}})
+    # a config saved by an older version names what replaced its removed key, in a file and on the command line
+    with pytest.raises(ValueError, match="setting fast.tv_weight: removed setting: replaced by fast.normal_weight"):
+        FitConfig.from_dict({"fast": {"tv_weight": 1e-4}})
+    with pytest.raises(ValueError, match="setting fast.footprint_voxels: removed setting"):
+        override(FitConfig(), ["fast.footprint_voxels=0.5"])
     assert np.isfinite(cfg.total_steps)
