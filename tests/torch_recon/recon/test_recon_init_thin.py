@@ -175,3 +175,43 @@ def test_a_post_narrower_than_a_pixel_in_front_of_a_wall_is_kept_by_the_earliest
     axis = torch.stack([torch.full_like(zs, WALL_POST_XY[0]), torch.full_like(zs, WALL_POST_XY[1]), zs], 1)
     i = box.cell_index(axis)[0]
     assert int((free_only[i[:, 0], i[:, 1], i[:, 2]] == 2).sum()) == 0 < int((plain[i[:, 0], i[:, 1], i[:, 2]] == 2).sum())
+
+
+def _board_before_a_wall(n_pix=24):
+    """As `_post_before_a_wall`, with a 20 cm wide board (x 0.4-0.6, y = 0.5, z < 0.8) that the pixels whose
+    centre ray meets it see as their strongest return; the pixels on its silhouette (footprint overlapping it,
+    centre missing it) see the wall strongest and the board earliest (their nearest depth)."""
+    data = _post_before_a_wall(n_pix, with_nearest=False)
+    c, dirs = data.sensor_origin.double().numpy(), data.pixel_dirs.double().numpy()
+    depth, nearest = data.visible_depth.double().numpy().copy(), data.visible_depth.double().numpy().copy()
+    t = (WALL_POST_XY[1] - c[1]) / dirs[:, 1]
+    at = c + dirs * t[:, None]
+    half = 0.5 * (t / depth) * (1.0 / n_pix)
+    centre_on = (np.abs(at[:, 0] - 0.5) < 0.1) & (at[:, 2] < WALL_POST_TOP)
+    overlaps = (np.abs(at[:, 0] - 0.5) < 0.1 + half) & (at[:, 2] < WALL_POST_TOP + half)
+    depth[centre_on] = t[centre_on]
+    nearest[overlaps] = t[overlaps]
+    data.visible_depth = torch.as_tensor(depth, dtype=torch.float32)
+    data.nearest_depth = torch.as_tensor(nearest, dtype=torch.float32)
+    return data, int((overlaps & ~centre_on).sum())
+
+
+def test_the_silhouette_of_a_part_the_sensor_sees_is_not_fattened():
+    """A board's silhouette pixels (the board their earliest return, the wall their strongest) mark no whole voxel
+    beside the board: their neighbours' visible surface holds it. With `thin_part_edges` they do (the old
+    behaviour: the outline grows by up to a voxel); the 2 cm post that no pixel sees strongest stays whole."""
+    data, n_edge = _board_before_a_wall()
+    box = GridBox([-0.05, -1.05, -0.05], [1.05, 1.05, 1.05], 64)
+    x = box.centres()[..., 0]
+    beside = (x - 0.5).abs() > 0.1 + 0.5 * box.voxel           # centre outside the board's extent
+    edges, _ = evidence_grid(data, box, nearest_free=True, nearest_surface=True, thin_part_edges=True)
+    plain, _ = evidence_grid(data, box, nearest_free=True, nearest_surface=True)
+    assert n_edge > 20 and int(((edges == NEAREST) & beside).sum()) > 10
+    assert int((plain == NEAREST).sum()) == 0
+    post = _post_before_a_wall()
+    box = GridBox([-0.05, -1.05, -0.05], [1.05, 1.05, 1.05], 64)
+    z = box.centres()[..., 2]
+    off_axis = torch.linalg.vector_norm(box.centres()[..., :2] - torch.tensor(WALL_POST_XY, dtype=torch.float32), -1)
+    column = (off_axis < box.voxel) & (z > 0.1) & (z < WALL_POST_TOP - 0.1)
+    kept, n = _heights_kept(evidence_grid(post, box, nearest_free=True, nearest_surface=True)[0], column)
+    assert kept == n >= 15, (kept, n)
