@@ -104,6 +104,8 @@ class FastConfig:
                                       # more than a voxel behind it (the thin part itself)
     thin_part_edges: bool = False     # ... also where a neighbouring pixel's strongest return is that surface (a
                                       # silhouette edge of a part the neighbour already holds: fattens it)
+    thin_part_centre: bool = True     # ... a thin part's point is the mean of its 3 x 3 neighbours' at the same
+                                      # range, a quarter pixel footprint behind the earliest return (its middle)
     thin_part_half_width_voxels: float = 0.0  # > 0: those voxels start this far inside the surface (a part thinner
                                       # than a voxel); 0: fully occupied. thin-structures 0.3: start better,
                                       # trained worse (F@2cm table 0.792 -> 0.775; training erodes it)

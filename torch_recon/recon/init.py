@@ -186,36 +186,62 @@ def _pixel_stride(data: RayData, voxel: float, spacing_voxels: float = 1.0) -> i
     return max(1, int(spacing_voxels * voxel / footprint))
 
 
-def _neighbour_sees(d, r, tol):
-    """(H, W) bool: some 8-neighbouring pixel's strongest return (`d`, its fused depth) lies within `tol` of
-    this pixel's range `r`: the surface is that neighbour's visible surface, and this pixel its edge."""
-    h, w = d.shape
-    dp = torch.nn.functional.pad(torch.nan_to_num(d, nan=float("inf"))[None, None], (1, 1, 1, 1),
-                                 value=float("inf"))[0, 0]
-    seen = torch.zeros_like(d, dtype=torch.bool)
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            if dy or dx:
-                seen |= (dp[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] - r).abs() < tol
-    return seen
+def _shifted(t, dy, dx, fill):
+    """(H, W) `t` moved so that [y, x] holds t[y + dy, x + dx] (`fill` beyond the image)."""
+    h, w = t.shape[:2]
+    p = torch.nn.functional.pad(t.movedim(-1, 0) if t.dim() == 3 else t[None], (1, 1, 1, 1), value=fill)
+    p = p[:, 1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
+    return p.movedim(0, -1) if t.dim() == 3 else p[0]
 
 
-def thin_part_points(data: RayData, voxel: float, samples: int = 4, edges: bool = False):
+_AROUND = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
+
+
+def _pixel_angle(data: RayData) -> float:
+    """Angle between neighbouring pixel rays (radians): a pixel's footprint is this x range."""
+    dirs = data.pixel_dirs.reshape(data.height, data.width, 3)
+    if data.width < 2:
+        return 0.0
+    return float(torch.arccos((dirs[0, data.width // 2 - 1] * dirs[0, data.width // 2]).sum().clamp(-1, 1)))
+
+
+def thin_part_points(data: RayData, voxel: float, samples: int = 4, edges: bool = False, centre: bool = True):
     """World points of parts thinner than a pixel, chunk by chunk: the nearest surface of each pixel whose
     strongest return lies more than `voxel` behind it (`nearest_depth`), and the segments joining it to the
     8-neighbouring pixels' nearest surfaces at the same range (within `voxel`): a pole or a leg seen
     over a column of pixels is one continuous part, not a dotted line with gaps where the pixel rows
     (3.7 cm apart at 3 m, 128 px) step over a 3.2 cm voxel.
-    Without `edges`, a pixel whose neighbour's strongest return is that same surface is left out: it sees the
-    silhouette edge of a part the neighbour's visible surface already holds (a backrest's outline, a leg
-    wider than the pixel), and a whole voxel there fattens the part by up to a voxel."""
+    Without `edges`, a pixel next to a broad surface at its range (a neighbour whose strongest return is that
+    surface, with at least 5 of its own 8 neighbours on it) is left out: it sees the silhouette edge of a
+    part the visible surface already holds (a backrest's outline), and a whole voxel there fattens the part
+    by up to a voxel. A part a pixel or so wide (a chair leg seen strongest in a column of single pixels)
+    keeps its edge pixels: the visible surface alone does not hold it.
+    With `centre`, a point is the mean of the 3 x 3 pixels' points at the same range (their earliest returns:
+    a 2 cm leg seen in two pixels side by side lies between their centres, 3.7 cm apart, not at both), a
+    quarter of the pixel's footprint behind the earliest return (the part's expected half width: the
+    earliest return comes from its front, the voxel should hold its middle)."""
     h, w = data.height, data.width
     d = data.visible_depth.reshape(h, w)
     r = torch.fmin(data.nearest_depth.reshape(h, w), d)
     thin = torch.isfinite(d) & (r < d - voxel)
+    inf = float("inf")
     if not edges:
-        thin &= ~_neighbour_sees(d, r, voxel)
-    x = data.sensor_origin + data.pixel_dirs.reshape(h, w, 3) * r[..., None]
+        dn = torch.nan_to_num(d, nan=inf)
+        broad = torch.stack([(_shifted(dn, dy, dx, inf) - dn).abs() < voxel for dy, dx in _AROUND]).sum(0) >= 6
+        beside = torch.stack([((_shifted(dn, dy, dx, inf) - r).abs() < voxel) & _shifted(broad, dy, dx, False)
+                              for dy, dx in _AROUND]).any(0)
+        thin &= ~beside
+    back = 0.25 * _pixel_angle(data) * r if centre else torch.zeros_like(r)
+    x = data.sensor_origin + data.pixel_dirs.reshape(h, w, 3) * (r + back)[..., None]
+    if centre:
+        rn = torch.nan_to_num(r, nan=inf)
+        wsum, xsum = torch.zeros_like(r), torch.zeros_like(x)
+        for dy, dx in _AROUND:
+            wk = (_shifted(rn, dy, dx, inf) - rn).abs() < voxel
+            wsum += wk
+            xsum += wk[..., None] * _shifted(torch.nan_to_num(x), dy, dx, 0.0)
+        x = torch.where(thin[..., None], xsum / wsum.clamp_min(1)[..., None], x)
+    r = r + back
     yield x[thin]
     s = torch.linspace(0.0, 1.0, samples + 2, device=d.device)[1:-1]
     for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
@@ -230,7 +256,7 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
                   secondary_offset_m: float = 0.0, step_voxels: float = 0.5, carve_core: float = 0.5,
                   count_shadow: bool = False, carve_spacing_voxels: float = 1.0, explain_shadow_rays: bool = False,
                   explain_camera_free: bool = False, explain_score: str = "ratio", nearest_free: bool = False,
-                  nearest_surface: bool = False, thin_part_edges: bool = False):
+                  nearest_surface: bool = False, thin_part_edges: bool = False, thin_part_centre: bool = False):
     """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
     blocker of a shadowed segment (with `explain_shadow_rays`), 6 a part under a pixel wide (with
     `nearest_surface`: `thin_part_points`); and the count of shadowed secondary segments through each voxel
@@ -263,7 +289,7 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     nearest = torch.zeros(n, dtype=torch.long, device=dev)
     if nearest_surface and data.nearest_depth is not None:
         # the nearest surface of a pixel whose strongest return lies behind it: a part thinner than the pixel
-        for pts in thin_part_points(data, box.voxel, edges=thin_part_edges):
+        for pts in thin_part_points(data, box.voxel, edges=thin_part_edges, centre=thin_part_centre):
             idx, inside = box.cell_index(pts)
             flat = (idx[:, 0] * box.shape[1] + idx[:, 1]) * box.shape[2] + idx[:, 2]
             nearest += torch.bincount(flat[inside], minlength=n)
@@ -350,7 +376,7 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
                                         count_shadow=cfg.trim_hull_voxels > 0, explain_shadow_rays=cfg.explain_shadows,
                                         explain_camera_free=cfg.explain_camera_free, explain_score=cfg.explain_score,
                                         nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface,
-                                        thin_part_edges=cfg.thin_part_edges)
+                                        thin_part_edges=cfg.thin_part_edges, thin_part_centre=cfg.thin_part_centre)
     free = (label == 2) | (label == 3)
     dev = data.pixel_dirs.device
     surface = visible_surface(data, box) if surface is None else surface
