@@ -116,7 +116,7 @@ def test_start_field_settings_refuse_bad_values(assignment):
 WALL_POST_XY, WALL_POST_R, WALL_POST_TOP = np.array([0.52, 0.5]), 0.01, 0.8
 
 
-def _post_before_a_wall(n_pix=24, with_nearest=True):
+def _post_before_a_wall(n_pix=24, with_nearest=True, post_xy=WALL_POST_XY, front=False):
     """Sensor at y = -1 looking at a wall at y = 1; a 2 cm post at y = 0.5 (under a pixel wide there: pixel
     rows 3.1 cm apart) that the strongest return of every pixel misses. With `with_nearest`, each pixel
     whose footprint (half a pixel either side) overlaps the post has its nearest depth there (its earliest
@@ -130,10 +130,12 @@ def _post_before_a_wall(n_pix=24, with_nearest=True):
     dirs /= depth[:, None]
     nearest = depth.copy()
     if with_nearest:
-        t = (WALL_POST_XY[1] - c[1]) / dirs[:, 1]           # range where the ray crosses the post's plane
+        t = (post_xy[1] - c[1]) / dirs[:, 1]           # range where the ray crosses the post's plane
         at = c + dirs * t[:, None]
         half = 0.5 * (t / depth) * (1.0 / n_pix)             # half a pixel's footprint at that range
-        seen = (np.abs(at[:, 0] - WALL_POST_XY[0]) < WALL_POST_R + half) & (at[:, 2] < WALL_POST_TOP)
+        seen = (np.abs(at[:, 0] - post_xy[0]) < WALL_POST_R + half) & (at[:, 2] < WALL_POST_TOP)
+        if front:
+            t = (post_xy[1] - WALL_POST_R - c[1]) / dirs[:, 1]
         nearest[seen] = t[seen]
     spots = np.array([[0.1, 0.0, 0.2], [0.9, 0.0, 0.2], [0.1, 0.0, 0.8], [0.9, 0.0, 0.8]])
     tt = np.linspace(0, 1, 400)
@@ -142,7 +144,7 @@ def _post_before_a_wall(n_pix=24, with_nearest=True):
     shd = []
     for l in spots:
         seg = x[:, None] + (l - x)[:, None] * tt[None, :, None]
-        hit = np.linalg.norm(seg[..., [0, 1]] - WALL_POST_XY, axis=-1) < WALL_POST_R
+        hit = np.linalg.norm(seg[..., [0, 1]] - post_xy, axis=-1) < WALL_POST_R
         shd.append((hit & (seg[..., 2] < WALL_POST_TOP)).any(1))
     shd = np.concatenate(shd)
     f = lambda a, dt=torch.float32: torch.as_tensor(np.asarray(a), dtype=dt)  # noqa: E731
@@ -215,3 +217,19 @@ def test_the_silhouette_of_a_part_the_sensor_sees_is_not_fattened():
     column = (off_axis < box.voxel) & (z > 0.1) & (z < WALL_POST_TOP - 0.1)
     kept, n = _heights_kept(evidence_grid(post, box, nearest_free=True, nearest_surface=True)[0], column)
     assert kept == n >= 15, (kept, n)
+
+
+def test_thin_part_points_lie_on_the_part_not_on_the_pixels_beside_it():
+    """A 2 cm post on the boundary of two pixel columns (3.1 cm footprints) that both see its front earliest:
+    centred, the points lie between the columns, inside the post (within 6 mm of its axis); uncentred they
+    are on its front, each column's half a footprint off the axis."""
+    from torch_recon.recon.init import thin_part_points
+
+    xy = np.array([0.5312, 0.5])
+    data = _post_before_a_wall(post_xy=xy, front=True)
+    axis_dist = lambda p: torch.linalg.vector_norm(p[:, :2] - torch.tensor(xy, dtype=p.dtype), dim=-1)  # noqa: E731
+    raw = next(thin_part_points(data, 0.033, centre=False))
+    mid = next(thin_part_points(data, 0.033, centre=True))
+    assert len(raw) >= 30 and len(mid) == len(raw)
+    assert float(axis_dist(raw).min()) > 0.015
+    assert float(axis_dist(mid).max()) < 0.006
