@@ -104,8 +104,9 @@ class FastConfig:
                                       # more than a voxel behind it (the thin part itself)
     thin_part_edges: bool = False     # ... also where a neighbouring pixel's strongest return is that surface (a
                                       # silhouette edge of a part the neighbour already holds: fattens it)
-    thin_part_centre: bool = True     # ... a thin part's point is the mean of its 3 x 3 neighbours' at the same
-                                      # range, a quarter pixel footprint behind the earliest return (its middle)
+    thin_part_centre: str = "mean"    # ... a thin part's point: 'depth' a quarter pixel footprint behind the
+                                      # earliest return (its middle); 'mean' also the mean of its 3 x 3
+                                      # neighbours' at the same range; 'off' the earliest return
     thin_part_half_width_voxels: float = 0.0  # > 0: those voxels start this far inside the surface (a part thinner
                                       # than a voxel); 0: fully occupied. thin-structures 0.3: start better,
                                       # trained worse (F@2cm table 0.792 -> 0.775; training erodes it)
@@ -189,6 +190,9 @@ class FitConfig:
         if self.platonerf.reinit_dead not in ("both", "coarse", "off"):
             raise SettingsError("platonerf.reinit_dead",
                                 f"expected 'both', 'coarse' or 'off', got {self.platonerf.reinit_dead!r}")
+        if self.fast.thin_part_centre not in ("off", "depth", "mean"):
+            raise SettingsError("fast.thin_part_centre", f"expected 'off', 'depth' or 'mean', got "
+                                                          f"{self.fast.thin_part_centre!r}")
         if self.fast.explain_score not in ("ratio", "spots"):
             raise SettingsError("fast.explain_score", f"expected 'ratio' or 'spots', got {self.fast.explain_score!r}")
         if not 0.0 <= self.fast.thin_part_half_width_voxels <= 0.5:

@@ -205,7 +205,7 @@ def _pixel_angle(data: RayData) -> float:
     return float(torch.arccos((dirs[0, data.width // 2 - 1] * dirs[0, data.width // 2]).sum().clamp(-1, 1)))
 
 
-def thin_part_points(data: RayData, voxel: float, samples: int = 4, edges: bool = False, centre: bool = True):
+def thin_part_points(data: RayData, voxel: float, samples: int = 4, edges: bool = False, centre: str = "mean"):
     """World points of parts thinner than a pixel, chunk by chunk: the nearest surface of each pixel whose
     strongest return lies more than `voxel` behind it (`nearest_depth`), and the segments joining it to the
     8-neighbouring pixels' nearest surfaces at the same range (within `voxel`): a pole or a leg seen
@@ -216,10 +216,10 @@ def thin_part_points(data: RayData, voxel: float, samples: int = 4, edges: bool 
     part the visible surface already holds (a backrest's outline), and a whole voxel there fattens the part
     by up to a voxel. A part a pixel or so wide (a chair leg seen strongest in a column of single pixels)
     keeps its edge pixels: the visible surface alone does not hold it.
-    With `centre`, a point is the mean of the 3 x 3 pixels' points at the same range (their earliest returns:
-    a 2 cm leg seen in two pixels side by side lies between their centres, 3.7 cm apart, not at both), a
-    quarter of the pixel's footprint behind the earliest return (the part's expected half width: the
-    earliest return comes from its front, the voxel should hold its middle)."""
+    `centre` 'depth' or 'mean': a point lies a quarter of the pixel's footprint behind the earliest return (the
+    part's expected half width: the earliest return comes from its front, the voxel should hold its middle);
+    'mean': and it is the mean of the 3 x 3 pixels' points at the same range (a 2 cm leg seen in two pixels
+    side by side lies between their centres, 3.7 cm apart, not at both); 'off': the earliest return itself."""
     h, w = data.height, data.width
     d = data.visible_depth.reshape(h, w)
     r = torch.fmin(data.nearest_depth.reshape(h, w), d)
@@ -231,9 +231,9 @@ def thin_part_points(data: RayData, voxel: float, samples: int = 4, edges: bool 
         beside = torch.stack([((_shifted(dn, dy, dx, inf) - r).abs() < voxel) & _shifted(broad, dy, dx, False)
                               for dy, dx in _AROUND]).any(0)
         thin &= ~beside
-    back = 0.25 * _pixel_angle(data) * r if centre else torch.zeros_like(r)
+    back = 0.25 * _pixel_angle(data) * r if centre != "off" else torch.zeros_like(r)
     x = data.sensor_origin + data.pixel_dirs.reshape(h, w, 3) * (r + back)[..., None]
-    if centre:
+    if centre == "mean":
         rn = torch.nan_to_num(r, nan=inf)
         wsum, xsum = torch.zeros_like(r), torch.zeros_like(x)
         for dy, dx in _AROUND:
@@ -256,7 +256,7 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
                   secondary_offset_m: float = 0.0, step_voxels: float = 0.5, carve_core: float = 0.5,
                   count_shadow: bool = False, carve_spacing_voxels: float = 1.0, explain_shadow_rays: bool = False,
                   explain_camera_free: bool = False, explain_score: str = "ratio", nearest_free: bool = False,
-                  nearest_surface: bool = False, thin_part_edges: bool = False, thin_part_centre: bool = False):
+                  nearest_surface: bool = False, thin_part_edges: bool = False, thin_part_centre: str = "off"):
     """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
     blocker of a shadowed segment (with `explain_shadow_rays`), 6 a part under a pixel wide (with
     `nearest_surface`: `thin_part_points`); and the count of shadowed secondary segments through each voxel

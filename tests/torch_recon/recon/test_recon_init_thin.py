@@ -104,7 +104,8 @@ def test_hull_no_shadow_needs_is_trimmed_the_post_stays():
     assert not bool((trimmed & band).any()) and not bool((trimmed & (shadow > 0)).any())
 
 
-@pytest.mark.parametrize("assignment", ["fast.trim_hull_voxels=-1", "fast.thin_part_half_width_voxels=0.7"])
+@pytest.mark.parametrize("assignment", ["fast.trim_hull_voxels=-1", "fast.thin_part_half_width_voxels=0.7",
+                                        "fast.thin_part_centre=middle"])
 def test_start_field_settings_refuse_bad_values(assignment):
     from torch_recon.contract.errors import SettingsError
     from torch_recon.recon.config import FitConfig, override
@@ -228,8 +229,8 @@ def test_thin_part_points_lie_on_the_part_not_on_the_pixels_beside_it():
     xy = np.array([0.5312, 0.5])
     data = _post_before_a_wall(post_xy=xy, front=True)
     axis_dist = lambda p: torch.linalg.vector_norm(p[:, :2] - torch.tensor(xy, dtype=p.dtype), dim=-1)  # noqa: E731
-    raw = next(thin_part_points(data, 0.033, centre=False))
-    mid = next(thin_part_points(data, 0.033, centre=True))
+    raw = next(thin_part_points(data, 0.033, centre="off"))
+    mid = next(thin_part_points(data, 0.033, centre="mean"))
     assert len(raw) >= 30 and len(mid) == len(raw)
     assert float(axis_dist(raw).min()) > 0.015
     assert float(axis_dist(mid).max()) < 0.006
