@@ -12,6 +12,8 @@ Two modes share the data, the losses and the evaluation:
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import asdict, dataclass, field
 
 from ..contract import settings
@@ -107,6 +109,8 @@ class FastConfig:
     thin_part_centre: str = "mean"    # ... a thin part's point: 'depth' a quarter pixel footprint behind the
                                       # earliest return (its middle); 'mean' also the mean of its 3 x 3
                                       # neighbours' at the same range; 'off' the earliest return
+    thin_part_raw: float = 4.0        # raw density those voxels start at (raw_occupied: 4; higher: the training
+                                      # steps of the pixels that see past the part cannot empty it in 100 steps)
     thin_part_half_width_voxels: float = 0.0  # > 0: those voxels start this far inside the surface (a part thinner
                                       # than a voxel); 0: fully occupied. thin-structures 0.3: start better,
                                       # trained worse (F@2cm table 0.792 -> 0.775; training erodes it)
@@ -195,6 +199,9 @@ class FitConfig:
                                                           f"{self.fast.thin_part_centre!r}")
         if self.fast.explain_score not in ("ratio", "spots"):
             raise SettingsError("fast.explain_score", f"expected 'ratio' or 'spots', got {self.fast.explain_score!r}")
+        if not math.isfinite(self.fast.thin_part_raw) or self.fast.thin_part_raw < self.fast.raw_occupied:
+            raise SettingsError("fast.thin_part_raw", f"expected a number >= fast.raw_occupied "
+                                                       f"({self.fast.raw_occupied}), got {self.fast.thin_part_raw}")
         if not 0.0 <= self.fast.thin_part_half_width_voxels <= 0.5:
             raise SettingsError("fast.thin_part_half_width_voxels", f"expected a value in [0, 0.5] (voxels; 0: off), "
                                                                     f"got {self.fast.thin_part_half_width_voxels}")

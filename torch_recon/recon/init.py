@@ -422,6 +422,8 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     if sd is not None:
         near = torch.isfinite(sd) & ((label != 3) | (sd <= 0.5 * box.voxel)) & (label != RESTORED) & (label != NEAREST)
         raw = torch.where(near, ramp(sd), raw)
+    if cfg.thin_part_raw != cfg.raw_occupied:
+        raw = torch.where(label == NEAREST, torch.tensor(cfg.thin_part_raw, device=dev), raw)
     if cfg.thin_part_half_width_voxels > 0:
         # a part under a pixel wide: its voxel's centre this far inside the surface (thinner than a whole voxel)
         raw = torch.where(label == NEAREST, ramp(torch.tensor(cfg.thin_part_half_width_voxels * box.voxel,

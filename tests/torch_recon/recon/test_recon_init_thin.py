@@ -105,7 +105,7 @@ def test_hull_no_shadow_needs_is_trimmed_the_post_stays():
 
 
 @pytest.mark.parametrize("assignment", ["fast.trim_hull_voxels=-1", "fast.thin_part_half_width_voxels=0.7",
-                                        "fast.thin_part_centre=middle"])
+                                        "fast.thin_part_centre=middle", "fast.thin_part_raw=1"])
 def test_start_field_settings_refuse_bad_values(assignment):
     from torch_recon.contract.errors import SettingsError
     from torch_recon.recon.config import FitConfig, override
