@@ -205,7 +205,7 @@ def _pixel_angle(data: RayData) -> float:
     return float(torch.arccos((dirs[0, data.width // 2 - 1] * dirs[0, data.width // 2]).sum().clamp(-1, 1)))
 
 
-def thin_part_points(data: RayData, voxel: float, samples: int = 4, edges: bool = False, centre: str = "mean"):
+def thin_part_points(data: RayData, voxel: float, samples: int = 4, edges: bool = True, centre: str = "off"):
     """World points of parts thinner than a pixel, chunk by chunk: the nearest surface of each pixel whose
     strongest return lies more than `voxel` behind it (`nearest_depth`), and the segments joining it to the
     8-neighbouring pixels' nearest surfaces at the same range (within `voxel`): a pole or a leg seen
@@ -256,7 +256,7 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
                   secondary_offset_m: float = 0.0, step_voxels: float = 0.5, carve_core: float = 0.5,
                   count_shadow: bool = False, carve_spacing_voxels: float = 1.0, explain_shadow_rays: bool = False,
                   explain_camera_free: bool = False, explain_score: str = "ratio", nearest_free: bool = False,
-                  nearest_surface: bool = False, thin_part_edges: bool = False, thin_part_centre: str = "off"):
+                  nearest_surface: bool = False, thin_part_edges: bool = True, thin_part_centre: str = "off"):
     """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
     blocker of a shadowed segment (with `explain_shadow_rays`), 6 a part under a pixel wide (with
     `nearest_surface`: `thin_part_points`); and the count of shadowed secondary segments through each voxel
