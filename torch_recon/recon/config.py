@@ -109,7 +109,8 @@ class FastConfig:
                                       # cave-chair F@2cm 0.810 -> 0.865, thin-structures 0.750 -> 0.721 (lamp)
     thin_part_centre: str = "off"     # ... a thin part's point: 'depth' a quarter pixel footprint behind the
                                       # earliest return (its middle); 'mean' also the mean of its 3 x 3
-                                      # neighbours' at the same range; 'off' the earliest return
+                                      # neighbours' at the same range; 'seen' only of those seen strongest
+                                      # there; 'off' the earliest return
     thin_part_raw: float = 4.0        # raw density those voxels start at (raw_occupied: 4; higher: the training
                                       # steps of the pixels that see past the part cannot empty it in 100 steps)
     thin_part_half_width_voxels: float = 0.0  # > 0: those voxels start this far inside the surface (a part thinner
@@ -195,8 +196,8 @@ class FitConfig:
         if self.platonerf.reinit_dead not in ("both", "coarse", "off"):
             raise SettingsError("platonerf.reinit_dead",
                                 f"expected 'both', 'coarse' or 'off', got {self.platonerf.reinit_dead!r}")
-        if self.fast.thin_part_centre not in ("off", "depth", "mean"):
-            raise SettingsError("fast.thin_part_centre", f"expected 'off', 'depth' or 'mean', got "
+        if self.fast.thin_part_centre not in ("off", "depth", "mean", "seen"):
+            raise SettingsError("fast.thin_part_centre", f"expected 'off', 'depth', 'mean' or 'seen', got "
                                                           f"{self.fast.thin_part_centre!r}")
         if self.fast.explain_score not in ("ratio", "spots"):
             raise SettingsError("fast.explain_score", f"expected 'ratio' or 'spots', got {self.fast.explain_score!r}")

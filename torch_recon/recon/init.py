@@ -219,7 +219,9 @@ def thin_part_points(data: RayData, voxel: float, samples: int = 4, edges: bool 
     `centre` 'depth' or 'mean': a point lies a quarter of the pixel's footprint behind the earliest return (the
     part's expected half width: the earliest return comes from its front, the voxel should hold its middle);
     'mean': and it is the mean of the 3 x 3 pixels' points at the same range (a 2 cm leg seen in two pixels
-    side by side lies between their centres, 3.7 cm apart, not at both); 'off': the earliest return itself."""
+    side by side lies between their centres, 3.7 cm apart, not at both); 'seen': the mean of its own and those
+    of the neighbours that see that surface strongest (pulled onto a leg or a backrest the visible surface
+    holds; parts nobody sees strongest keep their width); 'off': the earliest return itself."""
     h, w = data.height, data.width
     d = data.visible_depth.reshape(h, w)
     r = torch.fmin(data.nearest_depth.reshape(h, w), d)
@@ -233,11 +235,15 @@ def thin_part_points(data: RayData, voxel: float, samples: int = 4, edges: bool 
         thin &= ~beside
     back = 0.25 * _pixel_angle(data) * r if centre != "off" else torch.zeros_like(r)
     x = data.sensor_origin + data.pixel_dirs.reshape(h, w, 3) * (r + back)[..., None]
-    if centre == "mean":
+    if centre in ("mean", "seen"):
         rn = torch.nan_to_num(r, nan=inf)
+        # 'seen': only the pixel itself and neighbours that see the part strongest pull it
+        rs = torch.where(rn < torch.nan_to_num(d, nan=inf) - voxel, torch.full_like(rn, inf), rn) \
+            if centre == "seen" else rn
         wsum, xsum = torch.zeros_like(r), torch.zeros_like(x)
         for dy, dx in _AROUND:
-            wk = (_shifted(rn, dy, dx, inf) - rn).abs() < voxel
+            wk = (_shifted(rs, dy, dx, inf) - rn).abs() < voxel
+            wk |= (dy == 0) & (dx == 0)
             wsum += wk
             xsum += wk[..., None] * _shifted(torch.nan_to_num(x), dy, dx, 0.0)
         x = torch.where(thin[..., None], xsum / wsum.clamp_min(1)[..., None], x)
