@@ -137,15 +137,13 @@ NEAREST = 6
 
 
 def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count, origins, dirs, near, far, step,
-                    restorable=(3,), chunk_samples: int = 1 << 20, score=None, grazed=None, end_margin: float = 0.0) -> int:
+                    restorable=(3,), chunk_samples: int = 1 << 20, score=None) -> int:
     """Make every shadowed segment blocked (in place on the flat `label`): a shadowed segment whose voxels
     were all carved free gets back the carved voxel along it with the most shadowed and fewest free
     crossings (shadow / (lit + 1)). Carving through whole voxels takes thin parts
     (a chair leg about one voxel wide) with it wherever a lit ray grazes their voxel; the shadows the part
     casts cross it and put it back. `score` (flat, float): another ranking of the candidates (higher wins)
-    in place of that ratio. `grazed` (flat bool): voxels within a shadow edge's uncertainty of a hidden blocker; a
-    segment with a sample in one (farther than `end_margin` m from both ends, where it meets the surfaces
-    it joins) is explained by that blocker and restores nothing. Returns the number of voxels restored."""
+    in place of that ratio. Returns the number of voxels restored."""
     if origins.shape[0] == 0:
         return 0
     if score is None:
@@ -153,14 +151,10 @@ def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count,
     can = torch.zeros(8, dtype=torch.bool, device=label.device)
     can[list(restorable)] = True
     picked = []
-    for rays, flat, keep in _marching_cells(box, origins, dirs, near, far, step, chunk_samples):
+    for _, flat, keep in _marching_cells(box, origins, dirs, near, far, step, chunk_samples):
         flat = flat.where(keep, 0.0).long()
         lab = label[flat]
         blocked = (keep & (lab != 2) & (lab != 3)).any(1)
-        if grazed is not None:
-            t = torch.arange(flat.shape[1], device=flat.device, dtype=near.dtype) * step + 0.5 * step
-            inner = (t[None] >= end_margin) & (t[None] <= (far[rays] - near[rays])[:, None] - end_margin)
-            blocked |= (keep & inner & grazed[flat]).any(1)
         cand = keep & can[lab.long()] & ~blocked[:, None]
         sc = torch.where(cand, score[flat], torch.full_like(flat, -1, dtype=score.dtype))
         best, j = sc.max(1)
@@ -217,13 +211,11 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
                   secondary_offset_m: float = 0.0, step_voxels: float = 0.5, carve_core: float = 0.5,
                   count_shadow: bool = False, carve_spacing_voxels: float = 1.0, explain_shadow_rays: bool = False,
                   explain_camera_free: bool = False, explain_score: str = "ratio", nearest_free: bool = False,
-                  nearest_surface: bool = False, explain_graze_voxels: int = 0):
+                  nearest_surface: bool = False):
     """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
     blocker of a shadowed segment (with `explain_shadow_rays`), 6 a part under a pixel wide (with
     `nearest_surface`: `thin_part_points`); and the count of shadowed secondary segments through each voxel
-    (with `count_shadow`). With `nearest_free` a camera ray is free only up to its pixel's nearest depth.
-    With `explain_graze_voxels` > 0 a shadowed segment passing that close to the hidden hull is explained by it
-    (a shadow's edge is known to about a pixel footprint) and restores no carved voxel."""
+    (with `count_shadow`). With `nearest_free` a camera ray is free only up to its pixel's nearest depth."""
     dev = data.pixel_dirs.device
     n = int(np.prod(box.shape))
     step = step_voxels * box.voxel
@@ -276,14 +268,11 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
             sh = data.shadowed & on_sub[data.pair_pixel]
             score = (spot_crossings(data, box, sh, off, step).float()
                      / (spot_crossings(data, box, data.lit & on_sub[data.pair_pixel], off, step, carve_core) + 1.0))
-        grazed, margin = None, 0.0
-        if explain_graze_voxels > 0:    # the hidden hull, grown by the shadow edge's uncertainty
-            r = int(explain_graze_voxels)
-            grazed = (_dilate_cube((label == 0).reshape(box.shape).float(), r) > 0).reshape(-1)
-            margin = (r + 1.5) * box.voxel      # not next to the surfaces the segment joins (behind them: hull)
-        restorable = (2, 3) if explain_camera_free else (3,)    # camera-free: a part thinner than a pixel
-        explain_shadows(box, label, lit_count + cam_free if explain_camera_free else lit_count, shadow_count,
-                        *seg, step, restorable=restorable, score=score, grazed=grazed, end_margin=margin)
+        if explain_camera_free:     # a part thinner than a pixel: the pixel ray saw past it
+            explain_shadows(box, label, lit_count + cam_free, shadow_count, *seg, step, restorable=(2, 3),
+                            score=score)
+        else:
+            explain_shadows(box, label, lit_count, shadow_count, *seg, step, score=score)
     return label.reshape(box.shape), shadow_count.reshape(box.shape)
 
 
@@ -341,8 +330,7 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
                                         cfg.step_voxels, cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
                                         count_shadow=cfg.trim_hull_voxels > 0, explain_shadow_rays=cfg.explain_shadows,
                                         explain_camera_free=cfg.explain_camera_free, explain_score=cfg.explain_score,
-                                        nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface,
-                                        explain_graze_voxels=cfg.explain_graze_voxels)
+                                        nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface)
     free = (label == 2) | (label == 3)
     dev = data.pixel_dirs.device
     surface = visible_surface(data, box) if surface is None else surface

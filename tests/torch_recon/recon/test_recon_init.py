@@ -48,29 +48,6 @@ def test_a_shadowed_segment_blocked_by_unknown_space_changes_nothing():
     assert torch.equal(label, before)
 
 
-def test_a_shadowed_segment_grazing_the_hidden_hull_is_explained_by_it():
-    """A shadow edge is known to about a pixel: a segment passing one voxel beside a hidden blocker restores no
-    fin beside it (organic-occluded's occluder); one passing farther from it still gets its blocker back."""
-    box = GridBox([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], 10)
-    n = int(np.prod(box.shape))
-    label = torch.full((n,), 3, dtype=torch.int8)
-    label[(5 * 10 + 4) * 10 + 5] = 0                       # hidden hull at (5, 4, 5), next to the segment's row y = 5
-    hull = (label == 0).reshape(box.shape).float()
-    grazed = (torch.nn.functional.max_pool3d(hull[None, None], 3, 1, 1)[0, 0] > 0).reshape(-1)
-    lit, shadow = torch.full((n,), 5), torch.full((n,), 10)
-    seg = _segment([0.05, 0.55, 0.55], [0.95, 0.55, 0.55])
-    assert explain_shadows(box, label.clone(), lit, shadow, *seg, step=0.05) == 1      # without: a fin
-    work = label.clone()
-    assert explain_shadows(box, work, lit, shadow, *seg, step=0.05, grazed=grazed, end_margin=0.15) == 0
-    assert torch.equal(work, label)
-    # two voxels away (row y = 7): not grazing, the blocker comes back
-    far = _segment([0.05, 0.75, 0.55], [0.95, 0.75, 0.55])
-    assert explain_shadows(box, work, lit, shadow, *far, step=0.05, grazed=grazed, end_margin=0.15) == 1
-    # the hull next to the segment's ends (the surfaces it joins) explains nothing
-    ends = _segment([0.65, 0.45, 0.55], [0.95, 0.45, 0.55])   # starts in (6, 4, 5), next to the hull
-    assert explain_shadows(box, label.clone(), lit, shadow, *ends, step=0.05, grazed=grazed, end_margin=0.15) == 1
-
-
 def test_normals_of_a_surface_seen_at_a_grazing_angle_next_to_another_surface():
     """A seat seen at 15 degrees with a wall rising right behind it (the nearer neighbour two rows up is on
     the wall): the seat's normals are vertical, the wall's horizontal."""
