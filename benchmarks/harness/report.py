@@ -119,11 +119,13 @@ def error_fields(rows) -> list[str]:
 
 
 def git_commit(root: Path) -> str | None:
+    """HEAD's short hash; where the tree is a copy without .git (a GPU machine's), BENCH_COMMIT names it."""
     try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True,
-                              timeout=10).stdout.strip() or None
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True,
+                              timeout=10).stdout.strip()
     except (OSError, subprocess.SubprocessError):
-        return None
+        head = ""
+    return head or os.environ.get("BENCH_COMMIT") or None
 
 
 def results_document(suite, settings, rows, quick: bool, machine: dict, command: str, root: Path,

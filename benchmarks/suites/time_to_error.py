@@ -36,7 +36,7 @@ AUTHORS_CURVE = {
 @dataclass
 class Settings:
     """Defaults (= full): the 2-core CPU run that finishes in about 25 minutes on the shared machine (fast mode
-    cut to 30 steps, platonerf to a 150 s budget: far from converged); on a GPU see GPU_COMMAND."""
+    cut to 30 steps, platonerf to a 150 s budget: far from converged); on a GPU the suite time_to_error_gpu."""
 
     example: str = "cave-chair"
     resolution: int = 64
@@ -53,10 +53,11 @@ class Settings:
     methods: tuple[str, ...] = ("fast", "platonerf")
 
 
-#: the GPU run (issue 12's setting: 128 px, all 139 test views, 30 minutes of platonerf), one command:
-GPU_COMMAND = ("python -m benchmarks run time_to_error --set device=cuda --set resolution=128 --set view_stride=1 "
-               "--set fast_steps=none --set fast_eval_every_s=2 --set platonerf_budget_s=1800 "
-               "--set platonerf_eval_every_s=300 --set platonerf_volume_resolution=128 --set platonerf_timing_steps=200")
+#: the GPU run (issue 12's setting: 128 px, all 139 test views, 30 minutes of platonerf): the suite
+#: `time_to_error_gpu`, whose full settings these are (its own results JSON beside the CPU one).
+GPU_SETTINGS = Settings(device="cuda", resolution=128, view_stride=1, fast_steps=None, fast_eval_every_s=2.0,
+                        platonerf_budget_s=1800.0, platonerf_eval_every_s=300.0, platonerf_volume_resolution=128,
+                        platonerf_timing_steps=200)
 
 
 class _Scorer:
@@ -319,6 +320,18 @@ SUITE = Suite(
     full=Settings(),
     run=run, plot=plot, readme=readme,
 )
+
+GPU_SUITE = Suite(
+    name="time_to_error_gpu",
+    description="time_to_error on a CUDA device at the issue's setting (128 px, all valid test views, default fast "
+                "steps, 30 min of platonerf); the device tool's 10-minute calls run it with a shorter platonerf budget",
+    quick=Settings(device="cuda", resolution=128, view_stride=10, fast_steps=None, fast_eval_every_s=2.0,
+                   platonerf_budget_s=60.0, platonerf_eval_every_s=30.0, platonerf_volume_resolution=64,
+                   platonerf_timing_steps=50),
+    full=GPU_SETTINGS,
+    run=run, plot=plot, readme=readme,
+)
+SUITES = [GPU_SUITE]
 
 
 if __name__ == "__main__":      # the step-timing subprocess: DATASET DEVICE THREADS STEPS PHASE -> a JSON line

@@ -5,7 +5,7 @@ from __future__ import annotations
 import shlex
 
 from benchmarks.harness.report import check_rows
-from benchmarks.suites.time_to_error import AUTHORS_CURVE, GPU_COMMAND, SUITE, reference_rows, time_to_reach
+from benchmarks.suites.time_to_error import AUTHORS_CURVE, GPU_SUITE, SUITE, reference_rows, time_to_reach
 
 
 def test_reference_rows_are_valid_rows_and_labelled():
@@ -26,7 +26,7 @@ def test_settings_pick_a_device():
     assert SUITE.settings(True).view_stride > 1             # the quick run stays affordable on a CPU
 
 
-def test_the_documented_gpu_command_parses_to_the_issue_setting():
-    args = shlex.split(GPU_COMMAND)
-    s = SUITE.settings(False, [args[i + 1] for i, a in enumerate(args) if a == "--set"])
+def test_the_gpu_suite_runs_the_issue_setting():
+    s = GPU_SUITE.settings(False)
     assert (s.device, s.resolution, s.view_stride, s.fast_steps, s.platonerf_budget_s) == ("cuda", 128, 1, None, 1800.0)
+    assert GPU_SUITE.settings(False, ["platonerf_budget_s=420"]).platonerf_budget_s == 420.0
