@@ -67,9 +67,6 @@ class FastConfig:
     explain_camera_free: bool = True   # ... also a voxel the sensor saw through (parts thinner than a pixel)
     explain_score: str = "ratio"      # which carved voxel a shadowed segment gets back: 'ratio' (shadowed / lit
                                       # crossings) or 'spots' (distinct spots' shadows / distinct lit spots + 1)
-    lit_between_voxels: float = 0.0   # > 0: two neighbouring lit pixels on one surface (each within this many voxels of
-                                      # the other's tangent plane) have the surface between them lit: its segment
-                                      # to the spot carves too (recon/lit_between.py); 0: pixel centres only
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
     surface_margin_voxels: float = 1.0  # camera free space stops this far before the visible surface
     occupancy_threshold: float = 0.01  # cells whose neighbourhood has sigma * voxel below this are skipped
@@ -193,8 +190,6 @@ class FitConfig:
         if not 0.0 <= self.fast.thin_part_half_width_voxels <= 0.5:
             raise SettingsError("fast.thin_part_half_width_voxels", f"expected a value in [0, 0.5] (voxels; 0: off), "
                                                                     f"got {self.fast.thin_part_half_width_voxels}")
-        if not self.fast.lit_between_voxels >= 0:
-            raise SettingsError("fast.lit_between_voxels", f"expected a value >= 0 (voxels; 0: off), got {self.fast.lit_between_voxels}")
         if self.fast.trim_hull_voxels < 0:
             raise SettingsError("fast.trim_hull_voxels", f"expected an integer >= 0 (0: off), got {self.fast.trim_hull_voxels}")
         if not self.fast.normal_weight >= 0:

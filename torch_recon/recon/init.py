@@ -211,13 +211,11 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
                   secondary_offset_m: float = 0.0, step_voxels: float = 0.5, carve_core: float = 0.5,
                   count_shadow: bool = False, carve_spacing_voxels: float = 1.0, explain_shadow_rays: bool = False,
                   explain_camera_free: bool = False, explain_score: str = "ratio", nearest_free: bool = False,
-                  nearest_surface: bool = False, lit_between_voxels: float = 0.0, visible=None):
+                  nearest_surface: bool = False):
     """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
     blocker of a shadowed segment (with `explain_shadow_rays`), 6 a part under a pixel wide (with
     `nearest_surface`: `thin_part_points`); and the count of shadowed secondary segments through each voxel
-    (with `count_shadow`). With `nearest_free` a camera ray is free only up to its pixel's nearest depth.
-    With `lit_between_voxels` > 0 the surface between two neighbouring lit pixels on one surface (within that
-    many voxels of each other's tangent plane) carves too (`lit_between.py`; visible: `visible_surface`)."""
+    (with `count_shadow`). With `nearest_free` a camera ray is free only up to its pixel's nearest depth."""
     dev = data.pixel_dirs.device
     n = int(np.prod(box.shape))
     step = step_voxels * box.voxel
@@ -255,11 +253,6 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     on_sub[sub] = True
     off = max(secondary_offset_m, surface_margin_voxels * box.voxel)
     lit_count = _segment_counts(data, box, data.lit & on_sub[data.pair_pixel], off, step, carve_core)
-    if lit_between_voxels > 0:      # light between lit pixels (recon/lit_between.py)
-        from .lit_between import lit_between_segments, normals_image
-        visible = visible_surface(data, box) if visible is None else visible
-        _accumulate(box, *lit_between_segments(data, normals_image(data, visible), rows, cols, box.voxel, off,
-                                               lit_between_voxels), step, lit_count, core=carve_core)
     consistent = explain_shadow_rays and bool(data.shadowed.any())
     shadow_count = (_segment_counts(data, box, data.shadowed & on_sub[data.pair_pixel], off, step, 0.5)
                     if count_shadow or consistent else torch.zeros_like(lit_count))
@@ -333,15 +326,14 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     from .beyond_view import lit_side_of_hull, out_of_view_spots, unneeded_beside_view
     from .unobserved import bounding_planes, shell_signed_distance
 
-    surface = visible_surface(data, box) if surface is None else surface
     label, shadow_count = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m,
                                         cfg.step_voxels, cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
                                         count_shadow=cfg.trim_hull_voxels > 0, explain_shadow_rays=cfg.explain_shadows,
                                         explain_camera_free=cfg.explain_camera_free, explain_score=cfg.explain_score,
-                                        nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface,
-                                        lit_between_voxels=cfg.lit_between_voxels, visible=surface)
+                                        nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface)
     free = (label == 2) | (label == 3)
     dev = data.pixel_dirs.device
+    surface = visible_surface(data, box) if surface is None else surface
     sd = (surface_signed_distance(data, box, cfg.surface_half_width_voxels, surface=surface).to(dev)
           if cfg.surface_slope > 0 else None)
     shell = None
