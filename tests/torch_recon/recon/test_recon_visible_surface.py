@@ -104,3 +104,56 @@ def test_fast_model_box_is_grid_bbox_and_its_visible_surface_is_computed_once(mo
     vol, iso = model.surface_volume()
     front = in_front_of_visible_surface(real(data, box), box, torch.from_numpy(vol < iso))
     assert np.array_equal(free, (mesh_free | front).numpy()) and (free & ~mesh_free.numpy()).any()
+
+
+def _coarse_sensor_before_a_wall(w=6, wall=1.5, block=None):
+    """A 6 x 6 pixel sensor at the origin looking along -y at a wall (y = -wall); pixel rays lie about five
+    voxels apart at the wall. block: (x0, x1, z0, z1, y) a square plate facing the sensor in front of it."""
+    from types import SimpleNamespace
+
+    from torch_recon.contract.frames import camera_ray_directions, look_at_c2w
+    c2w = look_at_c2w((0.0, 0.0, 0.0), (0.0, -1.0, 0.0))
+    fov = np.radians(60.0)
+    dirs = (camera_ray_directions(w, w, fov, "x") @ c2w[:3, :3].T).reshape(-1, 3)
+    depth = wall / -dirs[:, 1]
+    if block is not None:
+        x0, x1, z0, z1, yb = block
+        t = yb / -dirs[:, 1]
+        hx, hz = dirs[:, 0] * t, dirs[:, 2] * t
+        depth = np.where((hx > x0) & (hx < x1) & (hz > z0) & (hz < z1), t, depth)
+    data = SimpleNamespace(sensor_origin=torch.zeros(3, dtype=torch.float64), pixel_dirs=torch.from_numpy(dirs),
+                           visible_depth=torch.from_numpy(depth), height=w, width=w)
+    box = GridBox(torch.tensor([-1.0, -1.7, -1.0]), torch.tensor([1.0, 0.3, 1.0]), 40)   # voxel 5 cm
+    return data, box, c2w, fov
+
+
+def test_seen_free_covers_the_space_between_coarse_pixel_rays():
+    from torch_recon.contract.frames import project_points
+    from torch_recon.recon.visible_surface_init import seen_free
+
+    data, box, c2w, fov = _coarse_sensor_before_a_wall()
+    free = seen_free(data, box, c2w, fov, "x", margin_voxels=0.5).numpy()
+    p = box.centres().reshape(-1, 3).numpy().astype(np.float64)
+    col, row, z = project_points(c2w, 6, 6, fov, p)
+    in_img = ((z > 0) & (col >= 0) & (col < 6) & (row >= 0) & (row < 6)).reshape(box.shape)
+    y = p[:, 1].reshape(box.shape)
+    # the wall is planar and inverse depth is affine in the image: the surface between the pixels is exact,
+    # so every voxel of the view more than a voxel in front of the wall is free, none behind it or just in
+    # front of it (within the margin along the ray), none outside the view
+    assert free[in_img & (y > -1.5 + box.voxel)].all()
+    assert not free[y < -1.5 + 0.49 * box.voxel].any()
+    assert not free[~in_img].any()
+
+
+def test_seen_free_stops_at_the_nearest_surface_across_an_occluding_edge():
+    from torch_recon.recon.visible_surface_init import seen_free
+
+    plate = (-0.3, 0.3, -0.3, 0.3, 0.8)
+    data, box, c2w, fov = _coarse_sensor_before_a_wall(block=plate)
+    free = seen_free(data, box, c2w, fov, "x").numpy()
+    p = box.centres().reshape(-1, 3).numpy()
+    x, y, zz = (p[:, i].reshape(box.shape) for i in range(3))
+    # the plate's shadow as the sensor sees it (behind the plate, within its silhouette): never free
+    behind = (y < -0.8) & (np.abs(x / -y) < 0.3 / 0.8) & (np.abs(zz / -y) < 0.3 / 0.8) & (y > -1.5)
+    assert behind.any() and not free[behind].any()
+    assert free[(y > -0.7) & (y < -0.2) & (np.abs(x) < 0.1) & (np.abs(zz) < 0.1)].all()
