@@ -151,16 +151,25 @@ def in_front_of_visible_surface(surface, box: GridBox, empty: torch.Tensor,
 
 def seen_free(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_axis: str,
               margin_voxels: float = 0.5, depth: torch.Tensor | None = None) -> torch.Tensor:
-    """Voxels (nx, ny, nz) bool whose centre the sensor saw through: it projects into the image and lies
-    more than `margin_voxels` (along its ray) in front of the visible surface between the four nearest
-    pixels' points. That surface is the bilinear one in inverse depth (exact for a plane) where no point
-    lies more than half a voxel behind another's tangent plane (one plane, or a concave corner: the chord
-    lies in front of both walls), else the nearest point's depth (an occluding or convex edge: what lies
-    between the pixel rays behind the nearer surface is unknown).
+    """Voxels (nx, ny, nz) bool whose centre the sensor saw through (`seen_free_points`)."""
+    pts = box.centres().reshape(-1, 3).cpu().numpy().astype(np.float64)
+    free = seen_free_points(data, camera_to_world, fov_rad, fov_axis, box.voxel, depth)(pts, margin_voxels * box.voxel)
+    return torch.from_numpy(free.reshape(box.shape))
+
+
+def seen_free_points(data: RayData, camera_to_world, fov_rad: float, fov_axis: str, voxel: float,
+                     depth: torch.Tensor | None = None):
+    """A test `free(points (N, 3), margin_m) -> bool (N,)`: the sensor saw through the point, i.e. it projects
+    into the image and lies more than `margin_m` (along its ray) in front of the visible surface between
+    the four nearest pixels' points. That surface is the bilinear one in inverse depth (exact for a plane)
+    where no point lies more than half a voxel behind another's tangent plane (one plane, or a concave
+    corner: the chord lies in front of both walls), else the nearest point's depth (an occluding or convex
+    edge: what lies between the pixel rays behind the nearer surface is unknown).
 
     A camera ray's march carves only the voxels it crosses, a line through the grid: where pixel rays lie
     more than a voxel apart (a coarse sensor; far or grazing surfaces) the voxels between them stay
-    unseen though the pixels' footprints covered them.
+    unseen though the pixels' footprints covered them; and a point tested for free space need not be a
+    voxel centre (the mesh's faces are tested a voxel in front of themselves).
     depth: (P,) range per pixel (default the visible depth; NaN unknown)."""
     from ..contract.frames import project_points
 
@@ -171,7 +180,7 @@ def seen_free(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_
     valid = np.isfinite(rng) & (rng > 0)
     x = c + dirs * np.where(valid, rng, 0.0)[..., None]
     pix_angle = float(np.arccos(np.clip((dirs[0, 0] * dirs[0, 1]).sum(), -1, 1))) if w > 1 else 1e-3
-    nrm = _depth_normals(x, valid, c, 8.0 * pix_angle * np.where(valid, rng, 0.0) + box.voxel, 0.25 * box.voxel)
+    nrm = _depth_normals(x, valid, c, 8.0 * pix_angle * np.where(valid, rng, 0.0) + voxel, 0.25 * voxel)
     zdepth = np.where(valid, rng * (dirs @ -np.asarray(camera_to_world, np.float64)[:3, 2]), np.nan)
     # cells between pixel centres (j, i) .. (j + 1, i + 1), edge pixels repeated: (h + 1, w + 1) cells
     jj = np.clip(np.arange(-1, h + 1), 0, h - 1)
@@ -184,21 +193,23 @@ def seen_free(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_
     for a in corner:
         for b in corner:
             behind = ((x[b] - x[a]) * nrm[a]).sum(-1)                       # NaN normal: not one surface
-            one_surface &= np.nan_to_num(behind, nan=-np.inf) >= -0.5 * box.voxel
+            one_surface &= np.nan_to_num(behind, nan=-np.inf) >= -0.5 * voxel
     nearest = np.where(np.isfinite(cz), cz, np.inf).min(0)
 
-    pts = box.centres().reshape(-1, 3).cpu().numpy().astype(np.float64)
-    col, row, z = project_points(camera_to_world, w, h, fov_rad, pts, fov_axis)
-    ok = np.isfinite(col) & np.isfinite(row) & (z > 0) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
-    u, v = col[ok] + 0.5, row[ok] + 0.5           # cell (j, i) spans pixel centres j - 1 .. j (+ 0.5 offset)
-    ci, cj = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
-    fu, fv = u - ci, v - cj
-    weights = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = (weights / cz[:, cj, ci]).sum(0)
-        est = np.where(one_surface[cj, ci], 1.0 / inv, nearest[cj, ci])    # camera-space depth of the surface
-    est = np.where(np.isfinite(est), est, -np.inf)                          # no measured depth: not seen free
-    r = np.linalg.norm(pts[ok] - c, axis=1)
-    free = np.zeros(len(pts), bool)
-    free[np.flatnonzero(ok)] = r * (est / z[ok] - 1.0) > margin_voxels * box.voxel
-    return torch.from_numpy(free.reshape(box.shape))
+    def free(points, margin_m: float):
+        pts = np.asarray(points, np.float64).reshape(-1, 3)
+        col, row, z = project_points(camera_to_world, w, h, fov_rad, pts, fov_axis)
+        ok = np.isfinite(col) & np.isfinite(row) & (z > 0) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
+        u, v = col[ok] + 0.5, row[ok] + 0.5       # cell (j, i) spans pixel centres j - 1 .. j (+ 0.5 offset)
+        ci, cj = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+        fu, fv = u - ci, v - cj
+        weights = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = (weights / cz[:, cj, ci]).sum(0)
+            est = np.where(one_surface[cj, ci], 1.0 / inv, nearest[cj, ci])    # camera-space depth of the surface
+        est = np.where(np.isfinite(est), est, -np.inf)                          # no measured depth: not seen free
+        r = np.linalg.norm(pts[ok] - c, axis=1)
+        out = np.zeros(len(pts), bool)
+        out[np.flatnonzero(ok)] = r * (est / z[ok] - 1.0) > margin_m
+        return out
+    return free
