@@ -121,6 +121,9 @@ class FastConfig:
                                         # visible point (along its normal): cave-chair start field, sensor
                                         # view pixels the mesh misses (pin-holes at the grazing ceiling next
                                         # to the back wall) 87 -> 3
+    mesh_seen_free: bool = True       # ... and faces facing a point the sensor's pixel footprints saw through
+                                      # (between pixel rays; visible_surface_init.seen_free_points): curved-wall
+                                      # and 64 px sensors' pin-holes (docs/reconstruction.md, session 9)
 
 
 @dataclass

@@ -19,7 +19,7 @@ from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total
 from .renderer import render_field, render_pruned, secondary_rays
 from .sampler import importance_positions, merged_intervals, ray_box, uniform_intervals
 from .smoothness import NormalConsistencyPrior
-from .visible_surface_init import in_front_of_visible_surface, surface_offset, visible_surface
+from .visible_surface_init import in_front_of_visible_surface, seen_free_points, surface_offset, visible_surface
 
 
 class ReconstructionModel:
@@ -136,6 +136,17 @@ class FastModel(ReconstructionModel):
             front = in_front_of_visible_surface(self.visible_surface(box), box, torch.from_numpy(vol < iso))
             free = free | front.to(free.device)
         return free.cpu().numpy()
+
+    def free_points_test(self):
+        """`seen_free_points` for the mesh's face test (None with `fast.mesh_seen_free` off): the sensor saw
+        through a point between its pixel rays too (its footprint), where no camera ray's march passed."""
+        if not self.fc.mesh_seen_free:
+            return None
+        depth = self.data.visible_depth
+        if self.fc.nearest_free and self.data.nearest_depth is not None:   # as the camera carving: not past a thin part
+            depth = torch.fmin(self.data.nearest_depth, depth)
+        return seen_free_points(self.data, self.meta["camera_to_world"], self.meta["fov_rad"], self.meta["fov_axis"],
+                                self.grid.box.voxel, depth)
 
     def offset_for(self, voxel):
         return max(self.cfg.loss.secondary_offset_m, self.fc.secondary_offset_voxels * voxel)
