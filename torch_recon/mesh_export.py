@@ -1,7 +1,7 @@
 """Occupancy/density volume -> mesh file that Blender imports in place, plus a sidecar JSON.
 
 Pipeline: marching cubes (scikit-image) -> (optional) keep only faces facing measured free space ->
-(optional) Taubin smoothing, the rims pinned -> drop small islands -> drop zero-area faces, merge vertices (trimesh) ->
+(optional) Taubin smoothing, pin-holes' rims pinned -> drop small islands -> drop zero-area faces, merge vertices (trimesh) ->
 UV unwrap (xatlas) -> .ply / .obj / .glb.
 
 Volume convention: `volume[i, j, k]` is the value at the grid point
@@ -76,7 +76,7 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
     `free_points(points (N, 3), margin_m) -> bool (N,)` of the same kind for any point (e.g. the sensor's
     pixel footprints, between voxel centres); a face is kept when either says its outward side is free.
     smooth_iterations: Taubin (lambda | mu) smoothing of the kept faces, which removes marching-cubes
-    terracing without shrinking the volume; the vertices on the rim of the kept surface stay in place.
+    terracing without shrinking the volume; the rims of pin-holes (`PIN_GAP_EDGES`) stay in place.
     Faces of zero area are removed and coincident vertices merged in every case.
     """
     import trimesh
@@ -104,10 +104,9 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
         mesh = _faces_facing_free(mesh, None if free_space is None else np.asarray(free_space, bool), lo, spacing,
                                   free_points)
     if smooth_iterations > 0 and len(mesh.faces):
-        # the rims of the faces left out stay where marching cubes put them: smoothed, every rim of a
-        # dropped face's gap pulled back and pin-holes grew into holes
-        rim = np.unique(mesh.edges_sorted[trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)])
-        lap = trimesh.smoothing.laplacian_calculation(mesh, pinned_vertices=rim)
+        # the rims of small gaps (a few faces left out) stay where marching cubes put them: smoothed, they
+        # pulled back and pin-holes grew into visible holes; long rims (the edge of the view) are smoothed
+        lap = trimesh.smoothing.laplacian_calculation(mesh, pinned_vertices=_small_gap_rims(mesh, PIN_GAP_EDGES))
         trimesh.smoothing.filter_taubin(mesh, lamb=0.5, nu=0.53, iterations=int(smooth_iterations),
                                         laplacian_operator=lap)
     removed = 0
@@ -124,6 +123,27 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
     if close_boundary:   # the padded ring lies just outside the box: clamp it onto the box faces
         mesh.vertices = np.clip(mesh.vertices, lo, hi)
     return _without_degenerate(mesh), removed
+
+
+#: a gap in the kept surface whose rim has at most this many edges is a pin-hole (its rim is not smoothed)
+PIN_GAP_EDGES = 24
+
+
+def _small_gap_rims(mesh, max_edges: int) -> np.ndarray:
+    """Vertices on boundary loops of at most `max_edges` edges (the rims of pin-holes)."""
+    import trimesh
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    edges = mesh.edges_sorted[trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)]
+    if len(edges) == 0:
+        return np.zeros(0, np.int64)
+    n = len(mesh.vertices)
+    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    loop = label[edges[:, 0]]
+    small = np.bincount(loop, minlength=label.max() + 1)[loop] <= max_edges
+    return np.unique(edges[small])
 
 
 def _without_degenerate(mesh):
