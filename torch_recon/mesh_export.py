@@ -126,7 +126,7 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
 
 
 #: a gap in the kept surface whose rim has at most this many edges is a pin-hole (its rim is not smoothed)
-PIN_GAP_EDGES = 24
+PIN_GAP_EDGES = 48
 
 
 def _small_gap_rims(mesh, max_edges: int) -> np.ndarray:
