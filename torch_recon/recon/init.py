@@ -334,7 +334,8 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     free = (label == 2) | (label == 3)
     dev = data.pixel_dirs.device
     surface = visible_surface(data, box) if surface is None else surface
-    sd = (surface_signed_distance(data, box, cfg.surface_half_width_voxels, surface=surface).to(dev)
+    sd = (surface_signed_distance(data, box, cfg.surface_half_width_voxels, surface=surface,
+                                  concave_corners=cfg.surface_concave_corners).to(dev)
           if cfg.surface_slope > 0 else None)
     shell = None
     if (cfg.complete_unobserved and view is not None) or cfg.trim_hull_voxels > 0:

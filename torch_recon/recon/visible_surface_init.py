@@ -79,11 +79,14 @@ def _dilate_cube(x: torch.Tensor, r: int) -> torch.Tensor:
 
 
 def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: float = 2.0, k: int = 4,
-                            surface=None):
+                            surface=None, concave_corners: bool = True):
     """Point-to-plane signed distance (m, + behind the surface) of voxel centres within `half_width_voxels`
     of the visible surface (NaN elsewhere): the mean over the k nearest measured points of their tangent
     planes, leaving out planes that disagree with the nearest by more than a voxel (another surface).
     Planar walls give an exactly linear field, so the iso-surface is flat (no grid-aligned steps).
+    concave_corners: where another surface among the 2 k nearest points meets the nearest one's in a
+    concave corner (its point lies in front of the nearest plane) and the voxel lies behind it, the voxel
+    is behind (the larger distance).
     surface: (points, normals) from `visible_surface` when already computed."""
     from scipy.spatial import cKDTree
 
@@ -102,15 +105,25 @@ def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: floa
     cand = torch.nonzero(occ, as_tuple=False).numpy()
     centres = lo + (cand + 0.5) * box.voxel
     tree = cKDTree(pts)
-    k = min(k, len(pts))
-    dist, j = tree.query(centres, k=k, distance_upper_bound=(half_width_voxels + 1.0) * box.voxel)
-    dist, j = dist.reshape(len(cand), k), j.reshape(len(cand), k)
+    kq = min(2 * k if concave_corners else k, len(pts))
+    dist, j = tree.query(centres, k=kq, distance_upper_bound=(half_width_voxels + 1.0) * box.voxel)
+    dist, j = dist.reshape(len(cand), kq), j.reshape(len(cand), kq)
     found = np.isfinite(dist)
     jj = np.where(found, j, 0)
     plane = ((pts[jj] - centres[:, None]) * nrm[jj]).sum(-1)          # + behind the surface
     agree = found & (np.abs(plane - plane[:, :1]) <= box.voxel)
+    agree[:, k:] = False
     wgt = agree * np.exp(-(np.where(found, dist, 0.0) / box.voxel) ** 2)
     val = (wgt * plane).sum(1) / np.maximum(wgt.sum(1), 1e-12)
+    if concave_corners:
+        # a concave corner (the other surface's point lies in front of the nearest one's plane, e.g. a floor
+        # meeting a wall): the solid is behind either surface; the nearest plane alone emptied the voxels
+        # behind the other surface next to the corner (rows of pin-holes along the junction)
+        other = found & ~agree
+        other[:, 0] = False
+        concave = ((pts[jj] - pts[jj[:, :1]]) * nrm[jj[:, :1]]).sum(-1) > 0.5 * box.voxel
+        behind_other = np.where(other & concave & (plane > 0), plane, -np.inf).max(1)
+        val = np.maximum(val, behind_other)
     keep = found[:, 0] & (np.abs(val) <= half_width_voxels * box.voxel)
     sd[tuple(cand[keep].T)] = val[keep]
     return torch.from_numpy(sd)
