@@ -157,3 +157,34 @@ def test_seen_free_stops_at_the_nearest_surface_across_an_occluding_edge():
     behind = (y < -0.8) & (np.abs(x / -y) < 0.3 / 0.8) & (np.abs(zz / -y) < 0.3 / 0.8) & (y > -1.5)
     assert behind.any() and not free[behind].any()
     assert free[(y > -0.7) & (y < -0.2) & (np.abs(x) < 0.1) & (np.abs(zz) < 0.1)].all()
+
+
+def test_voxels_behind_either_surface_of_a_concave_corner_are_behind():
+    """A floor (z = 4.53 voxels) meeting a wall (y = 10.47 voxels), both seen from the room (y < wall, z > floor),
+    the floor at a grazing angle (its points in rows 3 voxels apart): the voxels below the floor next to the
+    wall lie in front of the wall's plane, which is nearer than any floor point; the nearest plane alone
+    called them empty (a row of pin-holes along the junction)."""
+    from torch_recon.recon.visible_surface_init import surface_signed_distance
+
+    box = GridBox(torch.zeros(3), torch.full((3,), N * VOXEL), N)
+    zf, yw = 0.53 * VOXEL + 4 * VOXEL, 10.47 * VOXEL
+    g = np.arange(0.1, N * VOXEL, 0.25 * VOXEL)
+    rows = yw - np.arange(2.0, 14, 3.0) * VOXEL      # the floor seen at a grazing angle: pixel rows 3 voxels apart
+    a, b = np.meshgrid(g, rows, indexing="ij")
+    floor = np.stack([a.ravel(), b.ravel(), np.full(a.size, zf)], 1)
+    floor = floor[floor[:, 1] > 0]
+    a, b = np.meshgrid(g, g, indexing="ij")
+    wall = np.stack([a.ravel(), np.full(a.size, yw), b.ravel()], 1)
+    wall = wall[wall[:, 2] > zf]
+    pts = np.concatenate([floor, wall])
+    nrm = np.concatenate([np.tile([0.0, 0.0, 1.0], (len(floor), 1)), np.tile([0.0, -1.0, 0.0], (len(wall), 1))])
+    c = box.centres().numpy()
+    below_floor = (c[..., 2] < zf) & (c[..., 1] < yw)
+    behind_wall = (c[..., 1] > yw) & (c[..., 2] > zf)
+    room = (c[..., 2] > zf + 0.25 * VOXEL) & (c[..., 1] < yw - 0.25 * VOXEL)
+    for concave, ok in ((True, True), (False, False)):
+        sd = surface_signed_distance(None, box, 2.0, surface=(pts, nrm), concave_corners=concave).numpy()
+        known = np.isfinite(sd)
+        assert (sd[below_floor & known] > 0).all() == ok
+        assert (sd[behind_wall & known] > 0).all()      # the densely seen wall was right either way
+        assert (sd[room & known] < 0).all()          # the room's side of the corner stays in front
