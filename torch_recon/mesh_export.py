@@ -102,7 +102,7 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
     mesh = trimesh.Trimesh(verts + origin, np.ascontiguousarray(faces[:, ::-1]), process=True)
     if free_space is not None or free_points is not None:
         mesh = _faces_facing_free(mesh, None if free_space is None else np.asarray(free_space, bool), lo, spacing,
-                                  free_points)
+                                  np.array(np.shape(volume)), free_points)
     if smooth_iterations > 0 and len(mesh.faces):
         # the rims of small gaps (a few faces left out) stay where marching cubes put them: smoothed, they
         # pulled back and pin-holes grew into visible holes; long rims (the edge of the view) are smoothed
@@ -154,9 +154,10 @@ def _without_degenerate(mesh):
     return mesh
 
 
-def _faces_facing_free(mesh, free, lo, spacing, free_points=None):
+def _faces_facing_free(mesh, free, lo, spacing, shape, free_points=None):
     """Keep the faces whose outward side (0.5 to 1.5 grid steps along the normal) is known free space: the
-    nearest grid point is in `free`, or `free_points` passes the point itself (half a grid step of margin)."""
+    nearest grid point (of a grid of `shape` points) is in `free`, or `free_points` passes the point itself
+    (half a grid step of margin)."""
     if len(mesh.faces) == 0:
         return mesh
     c = mesh.triangles_center
@@ -164,14 +165,13 @@ def _faces_facing_free(mesh, free, lo, spacing, free_points=None):
     keep = np.zeros(len(c), bool)
     for s in (0.5, 1.0, 1.5):
         q = c + s * spacing * n
+        g = np.rint((q - lo) / spacing).astype(np.int64)
+        inside = np.all((g >= 0) & (g < shape), 1)        # nearest grid point in the box
         if free is not None:
-            shape = np.array(free.shape)
-            g = np.rint((q - lo) / spacing).astype(np.int64)
-            inside = np.all((g >= 0) & (g < shape), 1)
             gi = np.clip(g, 0, shape - 1)
             keep |= inside & free[gi[:, 0], gi[:, 1], gi[:, 2]]
-        if free_points is not None:
-            keep |= np.asarray(free_points(q, 0.5 * float(np.min(spacing))), bool)
+        if free_points is not None and inside.any():
+            keep[inside] |= np.asarray(free_points(q[inside], 0.5 * float(np.min(spacing))), bool)
     mesh.update_faces(keep)
     mesh.remove_unreferenced_vertices()
     return mesh
