@@ -59,9 +59,12 @@ class FastConfig:
     surface_slope: float = 4.0        # raw-density ramp per voxel across visible surfaces at init (0: binary);
                                       # 16 left the raw field binary at voxel centres (terraced meshes)
     surface_half_width_voxels: float = 2.0  # the signed-distance ramp spans +- this around visible surfaces
-    surface_concave_corners: bool = True  # a voxel behind either surface of a concave corner (floor meeting a
-                                      # wall) is behind; False: the nearest plane decides (curved-wall start:
-                                      # rows of pin-holes along the floor and vault junctions, session 9)
+    surface_concave_corners: bool = False  # True: a voxel behind either surface of a concave corner (floor meeting
+                                      # a wall) is behind, not the nearest plane's side (curved-wall: junction
+                                      # misses 3952 -> 3032, but chair F@2cm 0.818 -> 0.802; session 9)
+    carve_seen_free: bool = False     # True: camera carving also empties voxels between the pixel rays that the
+                                      # pixels' footprints saw through (visible_surface_init.seen_free_points;
+                                      # a coarse sensor: 64 px on the 128 grid; session 9)
     carve_core: float = 0.5           # a lit ray carves every voxel it crosses (0.3: only through the central
                                       # 0.6 cube; the shadow-consistency pass now keeps thin parts instead)
     carve_spacing_voxels: float = 1.0  # carve with pixels about this many voxels apart at the far surfaces

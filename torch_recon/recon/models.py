@@ -78,8 +78,13 @@ class FastModel(ReconstructionModel):
     def _initial(self, res=None, box=None):
         """The start field and its free space on `box`, or on a new box of `res` voxels along the longest side."""
         box = GridBox(self.bbox[0], self.bbox[1], res).to(self.device) if box is None else box
+        seen = None
+        if self.fc.carve_seen_free:     # camera carving between the pixel rays too (a coarse sensor)
+            seen = self.free_points_test(box.voxel)(box.centres().reshape(-1, 3).cpu().numpy().astype(np.float64),
+                                                    self.fc.surface_margin_voxels * box.voxel)
+            seen = torch.from_numpy(seen.reshape(box.shape))
         return initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box),
-                            self.visible_surface(box))
+                            self.visible_surface(box), seen_free=seen)
 
     def visible_surface(self, box):
         """`visible_surface` (points, normals) for `box`; it depends on the box's voxel size only, so it
@@ -137,16 +142,17 @@ class FastModel(ReconstructionModel):
             free = free | front.to(free.device)
         return free.cpu().numpy()
 
-    def free_points_test(self):
-        """`seen_free_points` for the mesh's face test (None with `fast.mesh_seen_free` off): the sensor saw
-        through a point between its pixel rays too (its footprint), where no camera ray's march passed."""
-        if not self.fc.mesh_seen_free:
+    def free_points_test(self, voxel=None):
+        """`seen_free_points` for the mesh's face test (None with `fast.mesh_seen_free` off; `voxel` given: for
+        the start field's carving, always): the sensor saw through a point between its pixel rays too (its
+        footprint), where no camera ray's march passed."""
+        if voxel is None and not self.fc.mesh_seen_free:
             return None
         depth = self.data.visible_depth
         if self.fc.nearest_free and self.data.nearest_depth is not None:   # as the camera carving: not past a thin part
             depth = torch.fmin(self.data.nearest_depth, depth)
         return seen_free_points(self.data, self.meta["camera_to_world"], self.meta["fov_rad"], self.meta["fov_axis"],
-                                self.grid.box.voxel, depth)
+                                self.grid.box.voxel if voxel is None else voxel, depth)
 
     def offset_for(self, voxel):
         return max(self.cfg.loss.secondary_offset_m, self.fc.secondary_offset_voxels * voxel)

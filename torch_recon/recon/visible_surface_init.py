@@ -79,7 +79,7 @@ def _dilate_cube(x: torch.Tensor, r: int) -> torch.Tensor:
 
 
 def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: float = 2.0, k: int = 4,
-                            surface=None, concave_corners: bool = True):
+                            surface=None, concave_corners: bool = False):
     """Point-to-plane signed distance (m, + behind the surface) of voxel centres within `half_width_voxels`
     of the visible surface (NaN elsewhere): the mean over the k nearest measured points of their tangent
     planes, leaving out planes that disagree with the nearest by more than a voxel (another surface).
