@@ -188,3 +188,29 @@ def test_voxels_behind_either_surface_of_a_concave_corner_are_behind():
         assert (sd[below_floor & known] > 0).all() == ok
         assert (sd[behind_wall & known] > 0).all()      # the densely seen wall was right either way
         assert (sd[room & known] < 0).all()          # the room's side of the corner stays in front
+
+
+def test_a_coarse_sensor_carves_between_its_pixel_rays_with_carve_seen_free():
+    """12 x 12 pixels on a 40-voxel grid (pixel rays several voxels apart at the far walls): the march leaves
+    voxels in front of the visible surface uncarved; `fast.carve_seen_free` empties them, and only voxels
+    the footprint test sees through."""
+    import torch_recon.recon.models as models
+    from tests.support.recon_fixtures import box_floor_measurements
+    from tests.torch_recon.recon.test_recon_fit import small_config
+    from torch_recon.recon.data import build_ray_data
+
+    meas = box_floor_measurements(12)
+    meta = {"camera_to_world": np.asarray(meas.camera_to_world), "fov_rad": meas.fov_rad, "fov_axis": meas.fov_axis}
+    data = build_ray_data(meas)
+    cfg = small_config(steps=0)
+    cfg.fast.nearest_free = cfg.fast.nearest_surface = False
+    plain = models.FastModel(data, cfg, meta)
+    cfg.fast.carve_seen_free = True
+    seen = models.FastModel(data, cfg, meta)
+    added = seen.free & ~plain.free
+    assert int(added.sum()) > 0
+    box = seen.grid.box
+    test = seen.free_points_test(box.voxel)
+    centres = box.centres().reshape(-1, 3).numpy().astype(np.float64)
+    seen_through = torch.from_numpy(test(centres, cfg.fast.surface_margin_voxels * box.voxel).reshape(box.shape))
+    assert bool(seen_through[added].all())
