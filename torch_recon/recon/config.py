@@ -62,9 +62,11 @@ class FastConfig:
     surface_concave_corners: bool = False  # True: a voxel behind either surface of a concave corner (floor meeting
                                       # a wall) is behind, not the nearest plane's side (curved-wall: junction
                                       # misses 3952 -> 3032, but chair F@2cm 0.818 -> 0.802; session 9)
-    carve_seen_free: bool = False     # True: camera carving also empties voxels between the pixel rays that the
-                                      # pixels' footprints saw through (visible_surface_init.seen_free_points;
-                                      # a coarse sensor: 64 px on the 128 grid; session 9)
+    carve_seen_free_beyond_voxels: float = 1.5  # pixel rays farther apart than this (voxels, at the far surfaces):
+                                      # camera carving also empties the voxels between them that the pixels'
+                                      # footprints saw through (visible_surface_init.seen_free_points). 64 px on the
+                                      # 128 grid (2.1): spurious 11.2 -> 2.5 %; 128 px (1.0) is below it (always on,
+                                      # 0: chair F@2cm 0.809 -> 0.794 on cave-chair; session 9)
     carve_core: float = 0.5           # a lit ray carves every voxel it crosses (0.3: only through the central
                                       # 0.6 cube; the shadow-consistency pass now keeps thin parts instead)
     carve_spacing_voxels: float = 1.0  # carve with pixels about this many voxels apart at the far surfaces

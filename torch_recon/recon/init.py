@@ -174,16 +174,22 @@ def spot_crossings(data: RayData, box: GridBox, mask, off, step, core=0.5):
     return spots
 
 
+def far_pixel_spacing(data: RayData) -> float | None:
+    """Distance (m) between neighbouring pixel rays at the far surfaces (the 95th percentile visible depth);
+    None without a visible depth."""
+    d = data.visible_depth[torch.isfinite(data.visible_depth)]
+    if d.numel() == 0:
+        return None
+    dirs = data.pixel_dirs.reshape(data.height, data.width, 3)
+    ang = float(torch.arccos((dirs[0, 0] * dirs[0, 1]).sum().clamp(-1, 1))) if data.width > 1 else 1.0
+    return max(ang * float(torch.quantile(d, 0.95)), 1e-6)
+
+
 def _pixel_stride(data: RayData, voxel: float, spacing_voxels: float = 1.0) -> int:
     """Pixel stride keeping neighbouring carving rays within `spacing_voxels` of each other out to the
     far surfaces (the 95th percentile depth): finer images carve with a subset of their pixels."""
-    d = data.visible_depth[torch.isfinite(data.visible_depth)]
-    if d.numel() == 0:
-        return 1
-    dirs = data.pixel_dirs.reshape(data.height, data.width, 3)
-    ang = float(torch.arccos((dirs[0, 0] * dirs[0, 1]).sum().clamp(-1, 1))) if data.width > 1 else 1.0
-    footprint = max(ang * float(torch.quantile(d, 0.95)), 1e-6)
-    return max(1, int(spacing_voxels * voxel / footprint))
+    footprint = far_pixel_spacing(data)
+    return 1 if footprint is None else max(1, int(spacing_voxels * voxel / footprint))
 
 
 def thin_part_points(data: RayData, voxel: float, samples: int = 4):

@@ -14,7 +14,7 @@ import torch.nn.functional as F
 from .config import FitConfig
 from .data import RayData
 from .fields import DensityGrid, GridBox
-from .init import grid_bbox, in_view, initial_grid
+from .init import far_pixel_spacing, grid_bbox, in_view, initial_grid
 from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total_loss
 from .renderer import render_field, render_pruned, secondary_rays
 from .sampler import importance_positions, merged_intervals, ray_box, uniform_intervals
@@ -79,7 +79,9 @@ class FastModel(ReconstructionModel):
         """The start field and its free space on `box`, or on a new box of `res` voxels along the longest side."""
         box = GridBox(self.bbox[0], self.bbox[1], res).to(self.device) if box is None else box
         seen = None
-        if self.fc.carve_seen_free:     # camera carving between the pixel rays too (a coarse sensor)
+        spacing = far_pixel_spacing(self.data)
+        if spacing is not None and spacing > self.fc.carve_seen_free_beyond_voxels * box.voxel:
+            # a coarse sensor: camera carving between the pixel rays too
             seen = self.free_points_test(box.voxel)(box.centres().reshape(-1, 3).cpu().numpy().astype(np.float64),
                                                     self.fc.surface_margin_voxels * box.voxel)
             seen = torch.from_numpy(seen.reshape(box.shape))

@@ -190,10 +190,10 @@ def test_voxels_behind_either_surface_of_a_concave_corner_are_behind():
         assert (sd[room & known] < 0).all()          # the room's side of the corner stays in front
 
 
-def test_a_coarse_sensor_carves_between_its_pixel_rays_with_carve_seen_free():
+def test_a_coarse_sensor_carves_between_its_pixel_rays():
     """12 x 12 pixels on a 40-voxel grid (pixel rays several voxels apart at the far walls): the march leaves
-    voxels in front of the visible surface uncarved; `fast.carve_seen_free` empties them, and only voxels
-    the footprint test sees through."""
+    voxels in front of the visible surface uncarved; carving between the pixel rays (pixel rays farther apart
+    than `fast.carve_seen_free_beyond_voxels`) empties them, and only voxels the footprint test sees through."""
     import torch_recon.recon.models as models
     from tests.support.recon_fixtures import box_floor_measurements
     from tests.torch_recon.recon.test_recon_fit import small_config
@@ -204,8 +204,9 @@ def test_a_coarse_sensor_carves_between_its_pixel_rays_with_carve_seen_free():
     data = build_ray_data(meas)
     cfg = small_config(steps=0)
     cfg.fast.nearest_free = cfg.fast.nearest_surface = False
+    cfg.fast.carve_seen_free_beyond_voxels = 1e9
     plain = models.FastModel(data, cfg, meta)
-    cfg.fast.carve_seen_free = True
+    cfg.fast.carve_seen_free_beyond_voxels = 1.5
     seen = models.FastModel(data, cfg, meta)
     added = seen.free & ~plain.free
     assert int(added.sum()) > 0
