@@ -75,8 +75,8 @@ class FastConfig:
     explain_camera_free: bool = False  # ... also a voxel the sensor saw through (parts thinner than a pixel). Off
                                       # since session 9: the earliest return (nearest_surface) keeps those parts,
                                       # and these restorations made fins at objects' edges in front of visible
-                                      # faces; six scenes 128 px: organic-occluded spurious 2.27 -> 1.98 %, L1
-                                      # 0.0752 -> 0.0540 m, cave-chair hidden R@2cm 0.823 -> 0.878 (docs/reconstruction.md)
+                                      # faces; six scenes 128 px (with footprint carving): organic-occluded spurious
+                                      # 2.33 -> 2.03 %, L1 0.0736 -> 0.0521 m, cave-chair hidden R@2cm 0.826 -> 0.880
     explain_score: str = "ratio"      # which carved voxel a shadowed segment gets back: 'ratio' (shadowed / lit
                                       # crossings) or 'spots' (distinct spots' shadows / distinct lit spots + 1)
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
