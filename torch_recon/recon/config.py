@@ -79,6 +79,8 @@ class FastConfig:
                                       # the chair) are the same class as those it tears (wall ramps)
     anchor_weight: float = 0.0        # prior: this x sum of squared raw change on those voxels (0.01: = the start)
     freeze_dilate_voxels: int = 1     # the frozen surface band reaches this many voxels beyond the ramp
+    hidden_lr_scale: float = 1.0      # the optimiser's step on voxels no direct measurement fixed (hidden hull, restored
+                                      # blockers, outside the view) is this many times Adam's (1: the same lr everywhere)
     normal_weight: float = 0.01       # surface prior (recon/smoothness.py): this x sum over neighbouring surface
                                       # cells of |n_a - n_b|^2 (n: unit gradient of raw); a sum, so a lump's gradient
                                       # (~0.3 x weight for 2 raw units) passes Adam's eps. 5 scenes 128 px: floor
@@ -116,6 +118,10 @@ class FastConfig:
                                          # more than twice this behind it
     plane_free_band_voxels: float = 2.0  # the mesh keeps faces facing completed empty space this close
                                          # to a completed plane
+    # --- surface placement of the mesh (recon/models.py surface_volume) ---
+    mesh_level_shift_voxels: float = 0.0  # the mesh's level moves this far inward (voxels along the ramp)
+    mesh_hull_inset_voxels: float = 0.0   # the shadow hull's binary boundary (occupied next to free) is placed
+                                          # this far inside the voxel face (the part lies somewhere in the kept voxel)
     # --- visible surfaces of the mesh (session 7) ---
     mesh_front_of_visible: bool = True  # the mesh also keeps faces facing the voxels just in front of a measured
                                         # visible point (along its normal): cave-chair start field, sensor
@@ -192,6 +198,14 @@ class FitConfig:
                                                                     f"got {self.fast.thin_part_half_width_voxels}")
         if self.fast.trim_hull_voxels < 0:
             raise SettingsError("fast.trim_hull_voxels", f"expected an integer >= 0 (0: off), got {self.fast.trim_hull_voxels}")
+        if not 0.0 <= self.fast.mesh_hull_inset_voxels <= 0.45:
+            raise SettingsError("fast.mesh_hull_inset_voxels",
+                                f"expected voxels in [0, 0.45] (0: off), got {self.fast.mesh_hull_inset_voxels}")
+        if not -0.5 <= self.fast.mesh_level_shift_voxels <= 0.5:
+            raise SettingsError("fast.mesh_level_shift_voxels",
+                                f"expected voxels in [-0.5, 0.5] (0: off), got {self.fast.mesh_level_shift_voxels}")
+        if not self.fast.hidden_lr_scale > 0:
+            raise SettingsError("fast.hidden_lr_scale", f"expected a factor > 0 (1: off), got {self.fast.hidden_lr_scale}")
         if not self.fast.normal_weight >= 0:
             raise SettingsError("fast.normal_weight", f"expected a weight >= 0 (0: off), got {self.fast.normal_weight}")
         if not 0 < self.fast.normal_max_angle_deg <= 90:

@@ -99,6 +99,10 @@ class FastModel(ReconstructionModel):
         start field `raw`; both None when neither freezing nor the anchor asks for them."""
         self.trainable = self._trainable(raw)
         self.raw_start = None if self.trainable is None else raw.detach().clone()
+        self.step_scale = None
+        if self.fc.hidden_lr_scale != 1.0:   # the hidden hull moves this much faster than the measured surfaces
+            hidden = ~self._measured(raw)
+            self.step_scale = 1.0 + (self.fc.hidden_lr_scale - 1.0) * hidden.to(raw.dtype)
 
     def _trainable(self, raw):
         """Voxels (raw layout (1, 1, nz, ny, nx), bool) the optimiser may change, or None (all).
@@ -110,13 +114,28 @@ class FastModel(ReconstructionModel):
         blockers and the unmeasured space outside the view."""
         if not (self.fc.freeze_measured or self.fc.anchor_weight > 0):
             return None
+        return ~self._measured(raw)
+
+    def _measured(self, raw):
+        """Voxels (raw layout, bool) a direct measurement fixed: known free space and the visible-surface
+        ramp dilated by `fast.freeze_dilate_voxels` (see `_trainable`)."""
         with torch.no_grad():
             ramp = (raw > self.fc.raw_free + 1e-3) & (raw < self.fc.raw_occupied - 1e-3)
             k = 2 * int(self.fc.freeze_dilate_voxels) + 1
             if k > 1:
                 ramp = F.max_pool3d(ramp.float(), k, 1, k // 2) > 0
             free = self.free.permute(2, 1, 0)[None, None].to(raw.device)
-            return ~(ramp | free)
+            return ramp | free
+
+    def _remember_raw(self, optimizer, args, kwargs):
+        self._raw_before = None if self.step_scale is None else self.grid.raw.detach().clone()
+
+    @torch.no_grad()
+    def _scale_step(self, optimizer, args, kwargs):
+        if self.step_scale is not None and self._raw_before is not None:
+            raw = self.grid.raw
+            raw.copy_(self._raw_before + self.step_scale * (raw - self._raw_before))
+        self._raw_before = None
 
     def fixed_depth(self, px):
         """The visible depth of pixels `px` where the surface band is frozen (NaN where unknown)."""
@@ -150,6 +169,9 @@ class FastModel(ReconstructionModel):
 
     def make_optimizer(self):
         self.optimizer = torch.optim.Adam(self.grid.parameters(), lr=self.fc.lr, eps=self.fc.adam_eps)
+        # per-voxel learning rate (fast.hidden_lr_scale): Adam's step of each voxel times `step_scale`
+        self.optimizer.register_step_pre_hook(self._remember_raw)
+        self.optimizer.register_step_post_hook(self._scale_step)
         if self._hook is not None:      # one gradient mask at a time, also when called again on the same grid
             self._hook.remove()
             self._hook = None
@@ -182,7 +204,7 @@ class FastModel(ReconstructionModel):
         if self.level == 0 and step >= int(self.fc.coarse_fraction * total):
             self.grid = self.grid.upsampled(self.fc.resolution)
             self.level = 1
-            if self.trainable is not None:  # the mask of the fine level: from its own start field (built
+            if self.trainable is not None or self.step_scale is not None:  # the masks of the fine level: from its own start field (built
                 start, self.free = self._initial(box=self.grid.box)     # once: free_evidence reuses `free`)
                 self._set_measured_mask(start.raw)
             self.refresh_occupancy()
@@ -245,12 +267,20 @@ class FastModel(ReconstructionModel):
         The ramp is steep (surface_slope per voxel), so opacity at voxel centres is nearly binary and
         marching cubes on it snaps the surface to the midpoint between centres (grid-aligned terraces
         of up to half a voxel). Clipped raw is linear in the signed distance across the surface: the
-        interpolated crossing is the measured surface to a fraction of a voxel."""
+        interpolated crossing is the measured surface to a fraction of a voxel.
+
+        `fast.mesh_level_shift_voxels` moves the level that far inward (raw grows by `surface_slope` per
+        voxel across a ramp); `fast.mesh_hull_inset_voxels` places the surface between a saturated occupied
+        voxel and a saturated free one (the shadow hull's binary boundary, which the ramp never reached)
+        that far inside the midpoint (see `binary_boundary_inset`)."""
         slope = max(self.fc.surface_slope, 1.0)
-        iso = surface_offset(self.grid.density_scale, self.grid.box.voxel, slope)
-        half = max(min(slope, iso - self.fc.raw_free, self.fc.raw_occupied - iso), 1e-3)   # inside the init's clamp
-        raw = self.grid.raw_xyz().detach().clamp(iso - half, iso + half)
-        return raw.cpu().numpy(), iso
+        level = surface_offset(self.grid.density_scale, self.grid.box.voxel, slope) \
+            + self.fc.mesh_level_shift_voxels * slope
+        half = max(min(slope, level - self.fc.raw_free, self.fc.raw_occupied - level), 1e-3)   # inside the init's clamp
+        raw = self.grid.raw_xyz().detach().clamp(level - half, level + half)
+        if self.fc.mesh_hull_inset_voxels > 0:
+            raw = binary_boundary_inset(raw, level, half, self.fc.mesh_hull_inset_voxels)
+        return raw.cpu().numpy(), level
 
     def params_finite(self) -> bool:
         return bool(torch.isfinite(self.grid.raw).all())
@@ -259,7 +289,8 @@ class FastModel(ReconstructionModel):
         return {"level": self.level, "raw": self.grid.raw.detach().clone(),
                 "bbox_min": self.grid.box.bbox_min.cpu(), "voxel": self.grid.box.voxel,
                 "shape": list(self.grid.box.shape), "free": self.free.clone(),
-                "trainable": self.trainable, "raw_start": self.raw_start, "occupancy": self.occupancy.clone(), "tau_step": self.tau_step.clone(), "optimizer": self.optimizer.state_dict(),
+                "trainable": self.trainable, "raw_start": self.raw_start, "step_scale": self.step_scale,
+                "occupancy": self.occupancy.clone(), "tau_step": self.tau_step.clone(), "optimizer": self.optimizer.state_dict(),
                 "normal_cells": None if self._normal_prior is None else self._normal_prior.cells.clone()}
 
     def load_state_dict(self, st):
@@ -272,12 +303,32 @@ class FastModel(ReconstructionModel):
         self.trainable = None if t is None else t.to(self.device)
         r0 = st.get("raw_start")
         self.raw_start = None if r0 is None else r0.to(self.device)
+        sc = st.get("step_scale")
+        self.step_scale = None if sc is None else sc.to(self.device)
         self.occupancy = st["occupancy"].to(self.device)
         self._normal_prior = None       # rebuilt on the surface cells the run had (resume == uninterrupted)
         self._normal_cells = st.get("normal_cells")
         self.tau_step = st["tau_step"].to(self.device)
         self.make_optimizer()
         self.optimizer.load_state_dict(st["optimizer"])
+
+
+def binary_boundary_inset(clipped, level: float, half: float, inset_voxels: float) -> torch.Tensor:
+    """Marching cubes crosses from a saturated free voxel (level - half) to a saturated occupied one
+    (level + half) at their midpoint, a voxel face. The shadow hull keeps every voxel a lit ray did not
+    cross, so the true surface lies somewhere inside the outer occupied voxel, not on its face: lower the
+    occupied voxels next to a saturated free one (6-neighbours) so that this crossing lies `inset_voxels`
+    inside the midpoint. A one-voxel part then keeps a thickness of 1 - 2 inset voxels.
+    clipped: (nx, ny, nz) raw density clipped to [level - half, level + half]."""
+    occ = clipped >= level + half - 1e-4
+    free = F.pad((clipped <= level - half + 1e-4).float()[None, None], (1, 1, 1, 1, 1, 1))[0, 0]
+    nx, ny, nz = clipped.shape
+    near_free = torch.zeros_like(occ)
+    for dx, dy, dz in ((0, 1, 1), (2, 1, 1), (1, 0, 1), (1, 2, 1), (1, 1, 0), (1, 1, 2)):
+        near_free |= free[dx:dx + nx, dy:dy + ny, dz:dz + nz] > 0
+    out = clipped.clone()
+    out[occ & near_free] = level - half + half / (0.5 + inset_voxels)
+    return out
 
 
 def _depth(r, far, min_opacity):
