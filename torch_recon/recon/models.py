@@ -99,10 +99,6 @@ class FastModel(ReconstructionModel):
         start field `raw`; both None when neither freezing nor the anchor asks for them."""
         self.trainable = self._trainable(raw)
         self.raw_start = None if self.trainable is None else raw.detach().clone()
-        self.step_scale = None
-        if self.fc.hidden_lr_scale != 1.0:   # the hidden hull moves this much faster than the measured surfaces
-            hidden = ~self._measured(raw)
-            self.step_scale = 1.0 + (self.fc.hidden_lr_scale - 1.0) * hidden.to(raw.dtype)
 
     def _trainable(self, raw):
         """Voxels (raw layout (1, 1, nz, ny, nx), bool) the optimiser may change, or None (all).
@@ -114,28 +110,13 @@ class FastModel(ReconstructionModel):
         blockers and the unmeasured space outside the view."""
         if not (self.fc.freeze_measured or self.fc.anchor_weight > 0):
             return None
-        return ~self._measured(raw)
-
-    def _measured(self, raw):
-        """Voxels (raw layout, bool) a direct measurement fixed: known free space and the visible-surface
-        ramp dilated by `fast.freeze_dilate_voxels` (see `_trainable`)."""
         with torch.no_grad():
             ramp = (raw > self.fc.raw_free + 1e-3) & (raw < self.fc.raw_occupied - 1e-3)
             k = 2 * int(self.fc.freeze_dilate_voxels) + 1
             if k > 1:
                 ramp = F.max_pool3d(ramp.float(), k, 1, k // 2) > 0
             free = self.free.permute(2, 1, 0)[None, None].to(raw.device)
-            return ramp | free
-
-    def _remember_raw(self, optimizer, args, kwargs):
-        self._raw_before = None if self.step_scale is None else self.grid.raw.detach().clone()
-
-    @torch.no_grad()
-    def _scale_step(self, optimizer, args, kwargs):
-        if self.step_scale is not None and self._raw_before is not None:
-            raw = self.grid.raw
-            raw.copy_(self._raw_before + self.step_scale * (raw - self._raw_before))
-        self._raw_before = None
+            return ~(ramp | free)
 
     def fixed_depth(self, px):
         """The visible depth of pixels `px` where the surface band is frozen (NaN where unknown)."""
@@ -169,9 +150,6 @@ class FastModel(ReconstructionModel):
 
     def make_optimizer(self):
         self.optimizer = torch.optim.Adam(self.grid.parameters(), lr=self.fc.lr, eps=self.fc.adam_eps)
-        # per-voxel learning rate (fast.hidden_lr_scale): Adam's step of each voxel times `step_scale`
-        self.optimizer.register_step_pre_hook(self._remember_raw)
-        self.optimizer.register_step_post_hook(self._scale_step)
         if self._hook is not None:      # one gradient mask at a time, also when called again on the same grid
             self._hook.remove()
             self._hook = None
@@ -204,7 +182,7 @@ class FastModel(ReconstructionModel):
         if self.level == 0 and step >= int(self.fc.coarse_fraction * total):
             self.grid = self.grid.upsampled(self.fc.resolution)
             self.level = 1
-            if self.trainable is not None or self.step_scale is not None:  # the masks of the fine level: from its own start field (built
+            if self.trainable is not None:  # the mask of the fine level: from its own start field (built
                 start, self.free = self._initial(box=self.grid.box)     # once: free_evidence reuses `free`)
                 self._set_measured_mask(start.raw)
             self.refresh_occupancy()
@@ -289,8 +267,7 @@ class FastModel(ReconstructionModel):
         return {"level": self.level, "raw": self.grid.raw.detach().clone(),
                 "bbox_min": self.grid.box.bbox_min.cpu(), "voxel": self.grid.box.voxel,
                 "shape": list(self.grid.box.shape), "free": self.free.clone(),
-                "trainable": self.trainable, "raw_start": self.raw_start, "step_scale": self.step_scale,
-                "occupancy": self.occupancy.clone(), "tau_step": self.tau_step.clone(), "optimizer": self.optimizer.state_dict(),
+                "trainable": self.trainable, "raw_start": self.raw_start, "occupancy": self.occupancy.clone(), "tau_step": self.tau_step.clone(), "optimizer": self.optimizer.state_dict(),
                 "normal_cells": None if self._normal_prior is None else self._normal_prior.cells.clone()}
 
     def load_state_dict(self, st):
@@ -303,8 +280,6 @@ class FastModel(ReconstructionModel):
         self.trainable = None if t is None else t.to(self.device)
         r0 = st.get("raw_start")
         self.raw_start = None if r0 is None else r0.to(self.device)
-        sc = st.get("step_scale")
-        self.step_scale = None if sc is None else sc.to(self.device)
         self.occupancy = st["occupancy"].to(self.device)
         self._normal_prior = None       # rebuilt on the surface cells the run had (resume == uninterrupted)
         self._normal_cells = st.get("normal_cells")
