@@ -79,8 +79,6 @@ class FastConfig:
                                       # the chair) are the same class as those it tears (wall ramps)
     anchor_weight: float = 0.0        # prior: this x sum of squared raw change on those voxels (0.01: = the start)
     freeze_dilate_voxels: int = 1     # the frozen surface band reaches this many voxels beyond the ramp
-    hidden_grad_scale: float = 1.0    # the gradient of voxels no direct measurement fixed (hidden hull, restored blockers)
-                                      # is multiplied by this before Adam (1: off); with adam_eps their step grows
     normal_weight: float = 0.01       # surface prior (recon/smoothness.py): this x sum over neighbouring surface
                                       # cells of |n_a - n_b|^2 (n: unit gradient of raw); a sum, so a lump's gradient
                                       # (~0.3 x weight for 2 raw units) passes Adam's eps. 5 scenes 128 px: floor
@@ -204,8 +202,6 @@ class FitConfig:
         if not -0.5 <= self.fast.mesh_level_shift_voxels <= 0.5:
             raise SettingsError("fast.mesh_level_shift_voxels",
                                 f"expected voxels in [-0.5, 0.5] (0: off), got {self.fast.mesh_level_shift_voxels}")
-        if not self.fast.hidden_grad_scale > 0:
-            raise SettingsError("fast.hidden_grad_scale", f"expected a factor > 0 (1: off), got {self.fast.hidden_grad_scale}")
         if not self.fast.normal_weight >= 0:
             raise SettingsError("fast.normal_weight", f"expected a weight >= 0 (0: off), got {self.fast.normal_weight}")
         if not 0 < self.fast.normal_max_angle_deg <= 90:

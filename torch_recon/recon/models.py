@@ -108,7 +108,7 @@ class FastModel(ReconstructionModel):
         `fast.freeze_dilate_voxels` so the occupied voxel behind the surface that the marching-cubes
         crossing interpolates to stays too). Left to the shadow loss: the hidden hull, the restored
         blockers and the unmeasured space outside the view."""
-        if not (self.fc.freeze_measured or self.fc.anchor_weight > 0 or self.fc.hidden_grad_scale != 1.0):
+        if not (self.fc.freeze_measured or self.fc.anchor_weight > 0):
             return None
         with torch.no_grad():
             ramp = (raw > self.fc.raw_free + 1e-3) & (raw < self.fc.raw_occupied - 1e-3)
@@ -153,12 +153,8 @@ class FastModel(ReconstructionModel):
         if self._hook is not None:      # one gradient mask at a time, also when called again on the same grid
             self._hook.remove()
             self._hook = None
-        scale = self.fc.hidden_grad_scale
-        if self.trainable is not None and (self.fc.freeze_measured or scale != 1.0):
-            # frozen: zero gradient, Adam never moves it; hidden_grad_scale: the unmeasured voxels' gradient
-            # outgrows Adam's epsilon (their step is about lr |k g| / (|k g| + eps))
-            t = self.trainable.to(self.grid.raw.dtype)
-            mask = scale * t + (0.0 if self.fc.freeze_measured else 1.0) * (1.0 - t)
+        if self.trainable is not None and self.fc.freeze_measured:  # zero gradient: Adam never moves it
+            mask = self.trainable.to(self.grid.raw.dtype)
             self._hook = self.grid.raw.register_hook(lambda g: g * mask)
 
     def refresh_occupancy(self):

@@ -163,29 +163,3 @@ def test_adam_epsilon_must_be_positive():
 
     with pytest.raises(SettingsError, match="fast.adam_eps"):
         override(FitConfig(), ["fast.adam_eps=0"])
-
-
-def test_hidden_grad_scale_multiplies_the_unmeasured_voxels_gradient(meas):
-    """fast.hidden_grad_scale: the hidden hull's gradient is k times larger (its Adam step outgrows eps), the
-    measured voxels' gradient unchanged; with freezing the measured ones still get none."""
-    cfg = small_config(steps=5)
-    cfg.fast.hidden_grad_scale = 10.0
-    model = FastModel(build_ray_data(meas), cfg, _meta(meas))
-    hidden = model.trainable
-    assert hidden is not None and hidden.any() and (~hidden).any()
-    model.grid.raw.sum().backward()
-    g = model.grid.raw.grad
-    assert torch.all(g[hidden] == 10.0) and torch.all(g[~hidden] == 1.0)
-    cfg.fast.freeze_measured = True
-    frozen = FastModel(build_ray_data(meas), cfg, _meta(meas))
-    frozen.grid.raw.sum().backward()
-    g = frozen.grid.raw.grad
-    assert torch.all(g[frozen.trainable] == 10.0) and torch.all(g[~frozen.trainable] == 0.0)
-
-
-def test_hidden_grad_scale_must_be_positive():
-    from torch_recon.contract.errors import SettingsError
-    from torch_recon.recon.config import FitConfig, override
-
-    with pytest.raises(SettingsError, match="fast.hidden_grad_scale"):
-        override(FitConfig(), ["fast.hidden_grad_scale=0"])
