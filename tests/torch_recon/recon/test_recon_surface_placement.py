@@ -62,3 +62,28 @@ def test_surface_placement_settings_are_range_checked():
         override(FitConfig(), ["fast.mesh_hull_inset_voxels=0.5"])
     with pytest.raises(SettingsError, match="fast.mesh_level_shift_voxels"):
         override(FitConfig(), ["fast.mesh_level_shift_voxels=0.6"])
+
+
+def test_fast_model_surface_volume_applies_the_settings():
+    """The fast model's mesh field: the level moves by shift x surface_slope; the inset lowers only saturated
+    occupied voxels next to saturated free ones; both off by default."""
+    from tests.support.recon_fixtures import box_floor_measurements
+    from tests.torch_recon.recon.test_recon_fit import small_config
+    from tests.torch_recon.recon.test_recon_freeze import _meta
+    from torch_recon.recon.data import build_ray_data
+    from torch_recon.recon.models import FastModel
+
+    meas = box_floor_measurements(32)
+    cfg = small_config(steps=1)
+    assert cfg.fast.mesh_level_shift_voxels == 0 and cfg.fast.mesh_hull_inset_voxels == 0
+    model = FastModel(build_ray_data(meas), cfg, _meta(meas))
+    vol0, level0 = model.surface_volume()
+    cfg.fast.mesh_level_shift_voxels = 0.1
+    _, level1 = model.surface_volume()
+    assert level1 == pytest.approx(level0 + 0.1 * cfg.fast.surface_slope)
+    cfg.fast.mesh_level_shift_voxels = 0.0
+    cfg.fast.mesh_hull_inset_voxels = 0.3
+    vol2, level2 = model.surface_volume()
+    assert level2 == level0
+    changed = vol2 != vol0
+    assert changed.any() and np.all(vol0[changed] == vol0.max()) and np.all(vol2[changed] < vol0.max())
