@@ -117,13 +117,12 @@ class FastConfig:
     plane_free_band_voxels: float = 2.0  # the mesh keeps faces facing completed empty space this close
                                          # to a completed plane
     # --- surface placement of the mesh (recon/models.py surface_volume) ---
-    mesh_level_shift_voxels: float = 0.0  # the mesh's level moves this far inward (voxels along the ramp). 0.1:
-                                          # F@2cm cave-chair 0.810 -> 0.822, thin-structures 0.750 -> 0.766, but
-                                          # hidden recall down (0.832 -> 0.809); off (docs/reconstruction.md, session 9)
-    mesh_hull_inset_voxels: float = 0.0   # the shadow hull's binary boundary (occupied next to free) is placed
-                                          # this far inside the voxel face. 0.35: F@2cm cave-chair +0.005,
-                                          # thin-structures +0.025, organic-occluded -0.034 (its hull is already
-                                          # inside the blob); off
+    mesh_level_shift_voxels: float = 0.0  # the mesh's level moves this far inward (voxels along the ramp). 0.1 on the
+                                          # six scenes (session 9): F@2cm +0.001..+0.017, hidden recall -0.004..-0.023;
+                                          # off (docs/reconstruction.md "Where the object F-score is lost")
+    mesh_hull_inset_voxels: float = 0.0   # the shadow hull's binary boundary (occupied next to free) is placed this far
+                                          # inside the voxel face. 0.35: F@2cm +0.005..+0.025 and hidden recall up on five
+                                          # scenes, organic-occluded -0.034 / -0.045 (its hull lies inside the blob); off
     # --- visible surfaces of the mesh (session 7) ---
     mesh_front_of_visible: bool = True  # the mesh also keeps faces facing the voxels just in front of a measured
                                         # visible point (along its normal): cave-chair start field, sensor
