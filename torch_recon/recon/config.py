@@ -61,12 +61,24 @@ class FastConfig:
     surface_slope: float = 4.0        # raw-density ramp per voxel across visible surfaces at init (0: binary);
                                       # 16 left the raw field binary at voxel centres (terraced meshes)
     surface_half_width_voxels: float = 2.0  # the signed-distance ramp spans +- this around visible surfaces
+    surface_concave_corners: bool = False  # True: a voxel behind either surface of a concave corner (floor meeting
+                                      # a wall) is behind, not the nearest plane's side (curved-wall: junction
+                                      # misses 3952 -> 3032, but chair F@2cm 0.818 -> 0.802; session 9)
+    carve_seen_free_beyond_voxels: float = 1.5  # pixel rays farther apart than this (voxels, at the far surfaces):
+                                      # camera carving also empties the voxels between them that the pixels'
+                                      # footprints saw through (visible_surface_init.seen_free_points). 64 px on the
+                                      # 128 grid (2.1): spurious 11.2 -> 2.5 %; 128 px (1.0) is below it (always on,
+                                      # 0: chair F@2cm 0.809 -> 0.794 on cave-chair; session 9)
     carve_core: float = 0.5           # a lit ray carves every voxel it crosses (0.3: only through the central
                                       # 0.6 cube; the shadow-consistency pass now keeps thin parts instead)
     carve_spacing_voxels: float = 1.0  # carve with pixels about this many voxels apart at the far surfaces
     explain_shadows: bool = True      # every shadowed segment keeps a blocker: the lit-carved voxel along it
                                       # with the highest shadowed / lit crossing ratio is put back (thin parts)
-    explain_camera_free: bool = True   # ... also a voxel the sensor saw through (parts thinner than a pixel)
+    explain_camera_free: bool = False  # ... also a voxel the sensor saw through (parts thinner than a pixel). Off
+                                      # since session 9: the earliest return (nearest_surface) keeps those parts,
+                                      # and these restorations made fins at objects' edges in front of visible
+                                      # faces; six scenes 128 px (with footprint carving): organic-occluded spurious
+                                      # 2.33 -> 2.03 %, L1 0.0736 -> 0.0521 m, cave-chair hidden R@2cm 0.826 -> 0.880
     explain_score: str = "ratio"      # which carved voxel a shadowed segment gets back: 'ratio' (shadowed / lit
                                       # crossings) or 'spots' (distinct spots' shadows / distinct lit spots + 1)
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
@@ -127,11 +139,21 @@ class FastConfig:
                                          # more than twice this behind it
     plane_free_band_voxels: float = 2.0  # the mesh keeps faces facing completed empty space this close
                                          # to a completed plane
+    # --- surface placement of the mesh (recon/models.py surface_volume) ---
+    mesh_level_shift_voxels: float = 0.0  # the mesh's level moves this far inward (voxels along the ramp). 0.1 on the
+                                          # six scenes (session 9): F@2cm +0.001..+0.017, hidden recall -0.004..-0.023;
+                                          # off (docs/reconstruction.md "Where the object F-score is lost")
+    mesh_hull_inset_voxels: float = 0.0   # the shadow hull's binary boundary (occupied next to free) is placed this far
+                                          # inside the voxel face. 0.35: F@2cm +0.005..+0.025 and hidden recall up on five
+                                          # scenes, organic-occluded -0.034 / -0.045 (its hull lies inside the blob); off
     # --- visible surfaces of the mesh (session 7) ---
     mesh_front_of_visible: bool = True  # the mesh also keeps faces facing the voxels just in front of a measured
                                         # visible point (along its normal): cave-chair start field, sensor
                                         # view pixels the mesh misses (pin-holes at the grazing ceiling next
                                         # to the back wall) 87 -> 3
+    mesh_seen_free: bool = True       # ... and faces facing a point the sensor's pixel footprints saw through
+                                      # (between pixel rays; visible_surface_init.seen_free_points): curved-wall
+                                      # and 64 px sensors' pin-holes (docs/reconstruction.md, session 9)
 
 
 @dataclass
@@ -209,6 +231,12 @@ class FitConfig:
                                                                     f"got {self.fast.thin_part_half_width_voxels}")
         if self.fast.trim_hull_voxels < 0:
             raise SettingsError("fast.trim_hull_voxels", f"expected an integer >= 0 (0: off), got {self.fast.trim_hull_voxels}")
+        if not 0.0 <= self.fast.mesh_hull_inset_voxels <= 0.45:
+            raise SettingsError("fast.mesh_hull_inset_voxels",
+                                f"expected voxels in [0, 0.45] (0: off), got {self.fast.mesh_hull_inset_voxels}")
+        if not -0.5 <= self.fast.mesh_level_shift_voxels <= 0.5:
+            raise SettingsError("fast.mesh_level_shift_voxels",
+                                f"expected voxels in [-0.5, 0.5] (0: off), got {self.fast.mesh_level_shift_voxels}")
         if not self.fast.normal_weight >= 0:
             raise SettingsError("fast.normal_weight", f"expected a weight >= 0 (0: off), got {self.fast.normal_weight}")
         if not 0 < self.fast.normal_max_angle_deg <= 90:

@@ -14,12 +14,12 @@ import torch.nn.functional as F
 from .config import FitConfig
 from .data import RayData
 from .fields import DensityGrid, GridBox
-from .init import grid_bbox, in_view, initial_grid
+from .init import far_pixel_spacing, grid_bbox, in_view, initial_grid
 from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total_loss
 from .renderer import render_field, render_pruned, secondary_rays
 from .sampler import importance_positions, merged_intervals, ray_box, uniform_intervals
 from .smoothness import NormalConsistencyPrior
-from .visible_surface_init import in_front_of_visible_surface, surface_offset, visible_surface
+from .visible_surface_init import in_front_of_visible_surface, seen_free_points, surface_offset, visible_surface
 
 
 class ReconstructionModel:
@@ -78,8 +78,15 @@ class FastModel(ReconstructionModel):
     def _initial(self, res=None, box=None):
         """The start field and its free space on `box`, or on a new box of `res` voxels along the longest side."""
         box = GridBox(self.bbox[0], self.bbox[1], res).to(self.device) if box is None else box
+        seen = None
+        spacing = far_pixel_spacing(self.data)
+        if spacing is not None and spacing > self.fc.carve_seen_free_beyond_voxels * box.voxel:
+            # a coarse sensor: camera carving between the pixel rays too
+            seen = self.free_points_test(box.voxel)(box.centres().reshape(-1, 3).cpu().numpy().astype(np.float64),
+                                                    self.fc.surface_margin_voxels * box.voxel)
+            seen = torch.from_numpy(seen.reshape(box.shape))
         return initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box),
-                            self.visible_surface(box))
+                            self.visible_surface(box), seen_free=seen)
 
     def visible_surface(self, box):
         """`visible_surface` (points, normals) for `box`; it depends on the box's voxel size only, so it
@@ -136,6 +143,18 @@ class FastModel(ReconstructionModel):
             front = in_front_of_visible_surface(self.visible_surface(box), box, torch.from_numpy(vol < iso))
             free = free | front.to(free.device)
         return free.cpu().numpy()
+
+    def free_points_test(self, voxel=None):
+        """`seen_free_points` for the mesh's face test (None with `fast.mesh_seen_free` off; `voxel` given: for
+        the start field's carving, always): the sensor saw through a point between its pixel rays too (its
+        footprint), where no camera ray's march passed."""
+        if voxel is None and not self.fc.mesh_seen_free:
+            return None
+        depth = self.data.visible_depth
+        if self.fc.nearest_free and self.data.nearest_depth is not None:   # as the camera carving: not past a thin part
+            depth = torch.fmin(self.data.nearest_depth, depth)
+        return seen_free_points(self.data, self.meta["camera_to_world"], self.meta["fov_rad"], self.meta["fov_axis"],
+                                self.grid.box.voxel if voxel is None else voxel, depth)
 
     def offset_for(self, voxel):
         return max(self.cfg.loss.secondary_offset_m, self.fc.secondary_offset_voxels * voxel)
@@ -245,12 +264,20 @@ class FastModel(ReconstructionModel):
         The ramp is steep (surface_slope per voxel), so opacity at voxel centres is nearly binary and
         marching cubes on it snaps the surface to the midpoint between centres (grid-aligned terraces
         of up to half a voxel). Clipped raw is linear in the signed distance across the surface: the
-        interpolated crossing is the measured surface to a fraction of a voxel."""
+        interpolated crossing is the measured surface to a fraction of a voxel.
+
+        `fast.mesh_level_shift_voxels` moves the level that far inward (raw grows by `surface_slope` per
+        voxel across a ramp); `fast.mesh_hull_inset_voxels` places the surface between a saturated occupied
+        voxel and a saturated free one (the shadow hull's binary boundary, which the ramp never reached)
+        that far inside the midpoint (see `binary_boundary_inset`)."""
         slope = max(self.fc.surface_slope, 1.0)
-        iso = surface_offset(self.grid.density_scale, self.grid.box.voxel, slope)
-        half = max(min(slope, iso - self.fc.raw_free, self.fc.raw_occupied - iso), 1e-3)   # inside the init's clamp
-        raw = self.grid.raw_xyz().detach().clamp(iso - half, iso + half)
-        return raw.cpu().numpy(), iso
+        level = surface_offset(self.grid.density_scale, self.grid.box.voxel, slope) \
+            + self.fc.mesh_level_shift_voxels * slope
+        half = max(min(slope, level - self.fc.raw_free, self.fc.raw_occupied - level), 1e-3)   # inside the init's clamp
+        raw = self.grid.raw_xyz().detach().clamp(level - half, level + half)
+        if self.fc.mesh_hull_inset_voxels > 0:
+            raw = binary_boundary_inset(raw, level, half, self.fc.mesh_hull_inset_voxels)
+        return raw.cpu().numpy(), level
 
     def params_finite(self) -> bool:
         return bool(torch.isfinite(self.grid.raw).all())
@@ -278,6 +305,25 @@ class FastModel(ReconstructionModel):
         self.tau_step = st["tau_step"].to(self.device)
         self.make_optimizer()
         self.optimizer.load_state_dict(st["optimizer"])
+
+
+def binary_boundary_inset(clipped, level: float, half: float, inset_voxels: float) -> torch.Tensor:
+    """Marching cubes crosses from a saturated free voxel (level - half) to a saturated occupied one
+    (level + half) at their midpoint, a voxel face. Where a kept hull voxel holds the part somewhere inside
+    (flat and thin parts, restored blockers) the true surface lies inside that face: lower the occupied voxels
+    next to a saturated free one (6-neighbours) so that this crossing lies `inset_voxels` inside the midpoint.
+    A one-voxel part then keeps a thickness of 1 - 2 inset voxels. (Where whole-voxel carving already put the
+    hull inside the part, the organic blob, it moves the wrong way: off by default, docs/reconstruction.md.)
+    clipped: (nx, ny, nz) raw density clipped to [level - half, level + half]."""
+    occ = clipped >= level + half - 1e-4
+    free = F.pad((clipped <= level - half + 1e-4).float()[None, None], (1, 1, 1, 1, 1, 1))[0, 0]
+    nx, ny, nz = clipped.shape
+    near_free = torch.zeros_like(occ)
+    for dx, dy, dz in ((0, 1, 1), (2, 1, 1), (1, 0, 1), (1, 2, 1), (1, 1, 0), (1, 1, 2)):
+        near_free |= free[dx:dx + nx, dy:dy + ny, dz:dz + nz] > 0
+    out = clipped.clone()
+    out[occ & near_free] = level - half + half / (0.5 + inset_voxels)
+    return out
 
 
 def _depth(r, far, min_opacity):
