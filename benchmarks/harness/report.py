@@ -119,11 +119,14 @@ def error_fields(rows) -> list[str]:
 
 
 def git_commit(root: Path) -> str | None:
+    """HEAD's short hash; BENCH_COMMIT, where set, names the code instead (a GPU machine's copy of the tree
+    carries a stale or no .git)."""
     try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True,
-                              timeout=10).stdout.strip() or None
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True,
+                              timeout=10).stdout.strip()
     except (OSError, subprocess.SubprocessError):
-        return None
+        head = ""
+    return os.environ.get("BENCH_COMMIT") or head or None
 
 
 def results_document(suite, settings, rows, quick: bool, machine: dict, command: str, root: Path,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import shlex
 
 from benchmarks.harness.report import check_rows
-from benchmarks.suites.time_to_error import AUTHORS_CURVE, GPU_COMMAND, SUITE, reference_rows, time_to_reach
+from benchmarks.suites.time_to_error import AUTHORS_CURVE, GPU_SUITE, SUITE, reference_rows, time_to_reach
 
 
 def test_reference_rows_are_valid_rows_and_labelled():
@@ -26,7 +26,30 @@ def test_settings_pick_a_device():
     assert SUITE.settings(True).view_stride > 1             # the quick run stays affordable on a CPU
 
 
-def test_the_documented_gpu_command_parses_to_the_issue_setting():
-    args = shlex.split(GPU_COMMAND)
-    s = SUITE.settings(False, [args[i + 1] for i, a in enumerate(args) if a == "--set"])
+def test_the_gpu_suite_runs_the_issue_setting():
+    s = GPU_SUITE.settings(False)
     assert (s.device, s.resolution, s.view_stride, s.fast_steps, s.platonerf_budget_s) == ("cuda", 128, 1, None, 1800.0)
+    assert GPU_SUITE.settings(False, ["platonerf_budget_s=420"]).platonerf_budget_s == 420.0
+
+
+def test_volume_depth_scores_the_fields_own_rendering():
+    """A field that renders every pixel at 2 m against a ground truth at 3 m: L1 1 m (no mesh involved)."""
+    import types
+
+    import numpy as np
+    import torch
+
+    from benchmarks.suites.time_to_error import _Scorer
+    from torch_recon.evaluate import EvalSettings
+
+    class FlatField:
+        device = torch.device("cpu")
+
+        def render_depth(self, origins, dirs, min_opacity=None):
+            assert min_opacity is None          # the mode's own test rendering, as the reference was scored
+            return torch.full((origins.shape[0],), 2.0)
+
+    score = _Scorer.__new__(_Scorer)
+    score.views = types.SimpleNamespace(width=8, height=6, fov_rad=0.8, fov_axis="x")
+    score.cams, score.gt, score.es = [np.eye(4)] * 2, np.full((2, 6, 8), 3.0, np.float32), EvalSettings()
+    assert abs(score.volume_depth(FlatField())["depth_l1_volume_m"] - 1.0) < 1e-6
