@@ -1,7 +1,7 @@
 """Occupancy/density volume -> mesh file that Blender imports in place, plus a sidecar JSON.
 
 Pipeline: marching cubes (scikit-image) -> (optional) keep only faces facing measured free space ->
-(optional) Taubin smoothing -> drop small islands -> drop zero-area faces, merge vertices (trimesh) ->
+(optional) Taubin smoothing, pin-holes' rims pinned -> drop small islands -> drop zero-area faces, merge vertices (trimesh) ->
 UV unwrap (xatlas) -> .ply / .obj / .glb.
 
 Volume convention: `volume[i, j, k]` is the value at the grid point
@@ -66,13 +66,17 @@ def _as_numpy(volume) -> np.ndarray:
 
 
 def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: bool = True,
-                     min_island_fraction: float = 0.01, free_space=None, smooth_iterations: int = 0):
+                     min_island_fraction: float = 0.01, free_space=None, smooth_iterations: int = 0,
+                     free_points=None):
     """Marching cubes + small-island removal -> (trimesh.Trimesh in world frame, islands removed).
 
     free_space: optional bool volume on the same grid points, True where the measurements say the
     space is empty; only faces whose outward side lies in it are kept (a surface facing space nobody
-    measured, e.g. the back of a wall or the box's faces, is not reported). smooth_iterations: Taubin
-    (lambda | mu) smoothing, which removes marching-cubes terracing without shrinking the volume.
+    measured, e.g. the back of a wall or the box's faces, is not reported). free_points: optional test
+    `free_points(points (N, 3), margin_m) -> bool (N,)` of the same kind for any point (e.g. the sensor's
+    pixel footprints, between voxel centres); a face is kept when either says its outward side is free.
+    smooth_iterations: Taubin (lambda | mu) smoothing of the kept faces, which removes marching-cubes
+    terracing without shrinking the volume; the rims of pin-holes (`PIN_GAP_EDGES`) stay in place.
     Faces of zero area are removed and coincident vertices merged in every case.
     """
     import trimesh
@@ -96,10 +100,15 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
     # scikit-image winds its triangles so that their normals point into the larger values (the
     # occupied side); reverse them: outward normals, positive volume, correct shading and culling
     mesh = trimesh.Trimesh(verts + origin, np.ascontiguousarray(faces[:, ::-1]), process=True)
-    if free_space is not None:
-        mesh = _faces_facing_free(mesh, np.asarray(free_space, bool), lo, spacing)
+    if free_space is not None or free_points is not None:
+        mesh = _faces_facing_free(mesh, None if free_space is None else np.asarray(free_space, bool), lo, spacing,
+                                  np.array(np.shape(volume)), free_points)
     if smooth_iterations > 0 and len(mesh.faces):
-        trimesh.smoothing.filter_taubin(mesh, lamb=0.5, nu=0.53, iterations=int(smooth_iterations))
+        # the rims of small gaps (a few faces left out) stay where marching cubes put them: smoothed, they
+        # pulled back and pin-holes grew into visible holes; long rims (the edge of the view) are smoothed
+        lap = trimesh.smoothing.laplacian_calculation(mesh, pinned_vertices=_small_gap_rims(mesh, PIN_GAP_EDGES))
+        trimesh.smoothing.filter_taubin(mesh, lamb=0.5, nu=0.53, iterations=int(smooth_iterations),
+                                        laplacian_operator=lap)
     removed = 0
     if min_island_fraction > 0 and len(mesh.faces):
         # islands = faces connected through shared edges (as mesh.split), labelled in one pass: split builds a
@@ -116,6 +125,27 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
     return _without_degenerate(mesh), removed
 
 
+#: a gap in the kept surface whose rim has at most this many edges is a pin-hole (its rim is not smoothed)
+PIN_GAP_EDGES = 48
+
+
+def _small_gap_rims(mesh, max_edges: int) -> np.ndarray:
+    """Vertices on boundary loops of at most `max_edges` edges (the rims of pin-holes)."""
+    import trimesh
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    edges = mesh.edges_sorted[trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)]
+    if len(edges) == 0:
+        return np.zeros(0, np.int64)
+    n = len(mesh.vertices)
+    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    loop = label[edges[:, 0]]
+    small = np.bincount(loop, minlength=label.max() + 1)[loop] <= max_edges
+    return np.unique(edges[small])
+
+
 def _without_degenerate(mesh):
     """Drop zero-area faces (e.g. collapsed by the clamp onto the box) and merge coincident vertices."""
     mesh.merge_vertices()
@@ -124,19 +154,24 @@ def _without_degenerate(mesh):
     return mesh
 
 
-def _faces_facing_free(mesh, free, lo, spacing):
-    """Keep the faces whose outward side (0.5 to 1.5 grid steps along the normal) is known free space."""
+def _faces_facing_free(mesh, free, lo, spacing, shape, free_points=None):
+    """Keep the faces whose outward side (0.5 to 1.5 grid steps along the normal) is known free space: the
+    nearest grid point (of a grid of `shape` points) is in `free`, or `free_points` passes the point itself
+    (half a grid step of margin)."""
     if len(mesh.faces) == 0:
         return mesh
     c = mesh.triangles_center
     n = mesh.face_normals
-    shape = np.array(free.shape)
     keep = np.zeros(len(c), bool)
     for s in (0.5, 1.0, 1.5):
-        g = np.rint((c + s * spacing * n - lo) / spacing).astype(np.int64)
-        inside = np.all((g >= 0) & (g < shape), 1)
-        gi = np.clip(g, 0, shape - 1)
-        keep |= inside & free[gi[:, 0], gi[:, 1], gi[:, 2]]
+        q = c + s * spacing * n
+        g = np.rint((q - lo) / spacing).astype(np.int64)
+        inside = np.all((g >= 0) & (g < shape), 1)        # nearest grid point in the box
+        if free is not None:
+            gi = np.clip(g, 0, shape - 1)
+            keep |= inside & free[gi[:, 0], gi[:, 1], gi[:, 2]]
+        if free_points is not None and inside.any():
+            keep[inside] |= np.asarray(free_points(q[inside], 0.5 * float(np.min(spacing))), bool)
     mesh.update_faces(keep)
     mesh.remove_unreferenced_vertices()
     return mesh
@@ -254,7 +289,7 @@ def sidecar_path(out_path) -> Path:
 
 def export_mesh(volume, bbox_min, bbox_max, level, out_path, metadata=None, *, extra_formats=(), uv=True,
                 close_boundary=True, min_island_fraction=0.01, max_uv_faces=1_000_000, free_space=None,
-                smooth_iterations: int = 0) -> ExportResult:
+                smooth_iterations: int = 0, free_points=None) -> ExportResult:
     """Volume -> mesh file(s) in the Blender world frame + `<stem>.mesh.json` with metadata.
 
     metadata: JSON-able dict from the caller (method, settings, run time, dataset hash, ...);
@@ -273,7 +308,8 @@ def export_mesh(volume, bbox_min, bbox_max, level, out_path, metadata=None, *, e
     except TypeError as exc:
         raise MeshExportError(f"metadata must be JSON-serialisable: {exc}") from None
     mesh, removed = mesh_from_volume(volume, bbox_min, bbox_max, level, close_boundary, min_island_fraction,
-                                     free_space=free_space, smooth_iterations=smooth_iterations)
+                                     free_space=free_space, smooth_iterations=smooth_iterations,
+                                     free_points=free_points)
     uv_done = False
     if uv and len(mesh.faces) <= max_uv_faces:
         mesh = uv_unwrap(mesh)
@@ -294,7 +330,8 @@ def export_mesh(volume, bbox_min, bbox_max, level, out_path, metadata=None, *, e
                        "bbox_max": np.asarray(bbox_max, float).tolist(), "level": float(level),
                        "sample_convention": "grid points span the bbox (corner-aligned)",
                        "close_boundary": bool(close_boundary), "min_island_fraction": float(min_island_fraction),
-                       "faces_facing_measured_free_space_only": free_space is not None,
+                       "faces_facing_measured_free_space_only": free_space is not None or free_points is not None,
+                       "free_space_point_test": free_points is not None,
                        "taubin_iterations": int(smooth_iterations)},
             "export_seconds": round(seconds, 4),
             "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds")}

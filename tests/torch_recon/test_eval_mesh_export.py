@@ -125,3 +125,46 @@ def test_one_sided_rendering_sees_past_a_wall_the_camera_is_inside():
     two = render_mesh_depth(scene, cam, 8, 8, 0.5, cull_back_faces=False)
     assert np.allclose(one[3:5, 3:5], 3.99 - 1.25, rtol=0.01)   # the target's face (range, near the axis)
     assert np.all(two < 0.1)
+
+
+def test_a_point_test_keeps_faces_the_free_voxels_miss():
+    """Free space known only between grid points (a coarse sensor's footprints): `free_points` alone keeps
+    the measured face, flat; neither test given keeps everything, the box's lids included."""
+    from torch_recon.mesh_export import mesh_from_volume
+
+    g = np.linspace(-1, 1, 21)
+    x, _, _ = np.meshgrid(g, g, g, indexing="ij")
+    slab = (x > 0.25).astype(np.float32)
+    none_free = np.zeros_like(slab, bool)
+    mesh, _ = mesh_from_volume(slab, [-1, -1, -1], [1, 1, 1], 0.5, free_space=none_free,
+                               free_points=lambda p, margin: p[:, 0] < 0.25 - margin)
+    assert len(mesh.faces) > 0 and np.allclose(mesh.vertices[:, 0], 0.25, atol=1e-6)
+    assert (mesh.face_normals[:, 0] < -0.99).all()
+    dropped, _ = mesh_from_volume(slab, [-1, -1, -1], [1, 1, 1], 0.5, free_space=none_free)
+    assert len(dropped.faces) == 0
+
+
+def test_smoothing_does_not_widen_pin_holes():
+    """A few faces of a wall left out (no free evidence in front of them): Taubin smoothing keeps the
+    rim of the gap in place (smoothed, the rim pulled back and the pin-hole grew)."""
+    import torch_recon.mesh_export as me
+
+    g = np.linspace(-1, 1, 21)
+    x, y, z = np.meshgrid(g, g, g, indexing="ij")
+    slab = (x > 0.25).astype(np.float32)
+    free = (x < 0.2) & ~((np.abs(y) < 0.05) & (np.abs(z) < 0.05))    # one grid column in front not measured
+
+    def area(**kw):     # of the wall round the gap (the wall's outer rim, a long one, is smoothed)
+        m = me.mesh_from_volume(slab, [-1, -1, -1], [1, 1, 1], 0.5, free_space=free, **kw)[0]
+        near = np.all(np.abs(m.triangles_center[:, 1:]) < 0.5, 1)
+        return float(m.area_faces[near].sum())
+
+    raw = area(smooth_iterations=0)
+    assert raw < 1.0 - 1e-3                                           # the gap is there
+    assert area(smooth_iterations=10) >= raw - 1e-9                   # and no larger after smoothing
+    pin = me.PIN_GAP_EDGES
+    try:
+        me.PIN_GAP_EDGES = 0
+        assert area(smooth_iterations=10) < raw - 1e-3                # unpinned, its rim pulls back
+    finally:
+        me.PIN_GAP_EDGES = pin

@@ -138,6 +138,7 @@ def _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, expo
                data_key=src_hash)
     vol, lo, hi = model.density_volume()
     free = model.free_evidence() if hasattr(model, "free_evidence") else None
+    free_points = model.free_points_test() if hasattr(model, "free_points_test") else None
     result = FitResult(mode=cfg.mode, model=model, train=tr, setup_seconds=setup, total_seconds=0.0,
                        volume=vol, bbox_min=lo, bbox_max=hi, level=cfg.mesh_level, source_hash=src_hash,
                        out_dir=out_dir)
@@ -164,7 +165,7 @@ def _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, expo
                 mvol, mlevel = (model.surface_volume() if hasattr(model, "surface_volume")
                                 else (vol, cfg.mesh_level))
                 files, result.mesh = export_volume(mvol, lo, hi, mlevel, staged / "mesh", result.metadata,
-                                                   uv=uv, free_space=free,
+                                                   uv=uv, free_space=free, free_points=free_points,
                                                    smooth_iterations=cfg.mesh_smooth_iterations)
                 result.mesh_files = {k: stage.final(v) for k, v in files.items()}
             except MeshExportError as exc:      # e.g. an early stop with nothing occupied yet
@@ -189,10 +190,11 @@ def voxel_centre_box(volume, bbox_min, bbox_max):
 
 
 def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: dict, uv: bool = True,
-                  free_space=None, smooth_iterations: int = 0):
+                  free_space=None, smooth_iterations: int = 0, free_points=None):
     """Marching cubes + cleanup + UVs -> .glb (+ .ply, .obj) through the shared mesh exporter.
 
     free_space (same shape as volume, bool): report only surfaces facing measured free space;
+    free_points: a point test of the same (mesh_export.mesh_from_volume);
     smooth_iterations: Taubin smoothing passes (see mesh_export.mesh_from_volume).
 
     Our values sit at voxel centres; the exporter's grid points span its bbox corner to corner, so
@@ -203,7 +205,7 @@ def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: d
     lo, hi = voxel_centre_box(volume, bbox_min, bbox_max)
     res = export_mesh(volume, lo, hi, level, Path(out_path).with_suffix(".glb"), metadata,
                       extra_formats=(".ply", ".obj"), uv=uv, free_space=free_space,
-                      smooth_iterations=smooth_iterations)
+                      smooth_iterations=smooth_iterations, free_points=free_points)
     files = {p.suffix.lstrip("."): p for p in res.paths}
     files["sidecar"] = res.sidecar
     return files, res.mesh

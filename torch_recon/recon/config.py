@@ -59,6 +59,14 @@ class FastConfig:
     surface_slope: float = 4.0        # raw-density ramp per voxel across visible surfaces at init (0: binary);
                                       # 16 left the raw field binary at voxel centres (terraced meshes)
     surface_half_width_voxels: float = 2.0  # the signed-distance ramp spans +- this around visible surfaces
+    surface_concave_corners: bool = False  # True: a voxel behind either surface of a concave corner (floor meeting
+                                      # a wall) is behind, not the nearest plane's side (curved-wall: junction
+                                      # misses 3952 -> 3032, but chair F@2cm 0.818 -> 0.802; session 9)
+    carve_seen_free_beyond_voxels: float = 1.5  # pixel rays farther apart than this (voxels, at the far surfaces):
+                                      # camera carving also empties the voxels between them that the pixels'
+                                      # footprints saw through (visible_surface_init.seen_free_points). 64 px on the
+                                      # 128 grid (2.1): spurious 11.2 -> 2.5 %; 128 px (1.0) is below it (always on,
+                                      # 0: chair F@2cm 0.809 -> 0.794 on cave-chair; session 9)
     carve_core: float = 0.5           # a lit ray carves every voxel it crosses (0.3: only through the central
                                       # 0.6 cube; the shadow-consistency pass now keeps thin parts instead)
     carve_spacing_voxels: float = 1.0  # carve with pixels about this many voxels apart at the far surfaces
@@ -121,6 +129,9 @@ class FastConfig:
                                         # visible point (along its normal): cave-chair start field, sensor
                                         # view pixels the mesh misses (pin-holes at the grazing ceiling next
                                         # to the back wall) 87 -> 3
+    mesh_seen_free: bool = True       # ... and faces facing a point the sensor's pixel footprints saw through
+                                      # (between pixel rays; visible_surface_init.seen_free_points): curved-wall
+                                      # and 64 px sensors' pin-holes (docs/reconstruction.md, session 9)
 
 
 @dataclass

@@ -174,16 +174,22 @@ def spot_crossings(data: RayData, box: GridBox, mask, off, step, core=0.5):
     return spots
 
 
+def far_pixel_spacing(data: RayData) -> float | None:
+    """Distance (m) between neighbouring pixel rays at the far surfaces (the 95th percentile visible depth);
+    None without a visible depth."""
+    d = data.visible_depth[torch.isfinite(data.visible_depth)]
+    if d.numel() == 0:
+        return None
+    dirs = data.pixel_dirs.reshape(data.height, data.width, 3)
+    ang = float(torch.arccos((dirs[0, 0] * dirs[0, 1]).sum().clamp(-1, 1))) if data.width > 1 else 1.0
+    return max(ang * float(torch.quantile(d, 0.95)), 1e-6)
+
+
 def _pixel_stride(data: RayData, voxel: float, spacing_voxels: float = 1.0) -> int:
     """Pixel stride keeping neighbouring carving rays within `spacing_voxels` of each other out to the
     far surfaces (the 95th percentile depth): finer images carve with a subset of their pixels."""
-    d = data.visible_depth[torch.isfinite(data.visible_depth)]
-    if d.numel() == 0:
-        return 1
-    dirs = data.pixel_dirs.reshape(data.height, data.width, 3)
-    ang = float(torch.arccos((dirs[0, 0] * dirs[0, 1]).sum().clamp(-1, 1))) if data.width > 1 else 1.0
-    footprint = max(ang * float(torch.quantile(d, 0.95)), 1e-6)
-    return max(1, int(spacing_voxels * voxel / footprint))
+    footprint = far_pixel_spacing(data)
+    return 1 if footprint is None else max(1, int(spacing_voxels * voxel / footprint))
 
 
 def thin_part_points(data: RayData, voxel: float, samples: int = 4):
@@ -211,11 +217,12 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
                   secondary_offset_m: float = 0.0, step_voxels: float = 0.5, carve_core: float = 0.5,
                   count_shadow: bool = False, carve_spacing_voxels: float = 1.0, explain_shadow_rays: bool = False,
                   explain_camera_free: bool = False, explain_score: str = "ratio", nearest_free: bool = False,
-                  nearest_surface: bool = False):
+                  nearest_surface: bool = False, seen_free=None):
     """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
     blocker of a shadowed segment (with `explain_shadow_rays`), 6 a part under a pixel wide (with
     `nearest_surface`: `thin_part_points`); and the count of shadowed secondary segments through each voxel
-    (with `count_shadow`). With `nearest_free` a camera ray is free only up to its pixel's nearest depth."""
+    (with `count_shadow`). With `nearest_free` a camera ray is free only up to its pixel's nearest depth.
+    seen_free: optional bool (nx, ny, nz), voxels the pixels' footprints saw through (camera-free as well)."""
     dev = data.pixel_dirs.device
     n = int(np.prod(box.shape))
     step = step_voxels * box.voxel
@@ -235,6 +242,8 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     free_end = d - surface_margin_voxels * box.voxel
     cam_free = torch.zeros(n, dtype=torch.long, device=dev)
     _accumulate(box, org, dirs, near, torch.maximum(free_end, near), step, cam_free)
+    if seen_free is not None:   # between the pixel rays (visible_surface_init.seen_free)
+        cam_free += seen_free.reshape(-1).to(cam_free.device).long()
     surface = torch.zeros(n, dtype=torch.long, device=dev)
     x_all = c + data.pixel_dirs * data.visible_depth[:, None]
     okx = torch.isfinite(data.visible_depth)
@@ -309,7 +318,8 @@ def in_view(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_ax
     return ok.reshape(box.shape)
 
 
-def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0.0, view=None, surface=None):
+def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0.0, view=None, surface=None,
+                 seen_free=None):
     """The fast mode's starting field (cfg: FastConfig) and the voxels the mesh may face (nx, ny, nz) bool.
 
     Known free (seen through by the sensor or crossed by a lit secondary ray): empty. Everything else
@@ -331,11 +341,13 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
                                         cfg.step_voxels, cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
                                         count_shadow=cfg.trim_hull_voxels > 0, explain_shadow_rays=cfg.explain_shadows,
                                         explain_camera_free=cfg.explain_camera_free, explain_score=cfg.explain_score,
-                                        nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface)
+                                        nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface,
+                                        seen_free=seen_free)
     free = (label == 2) | (label == 3)
     dev = data.pixel_dirs.device
     surface = visible_surface(data, box) if surface is None else surface
-    sd = (surface_signed_distance(data, box, cfg.surface_half_width_voxels, surface=surface).to(dev)
+    sd = (surface_signed_distance(data, box, cfg.surface_half_width_voxels, surface=surface,
+                                  concave_corners=cfg.surface_concave_corners).to(dev)
           if cfg.surface_slope > 0 else None)
     shell = None
     if (cfg.complete_unobserved and view is not None) or cfg.trim_hull_voxels > 0:

@@ -14,12 +14,12 @@ import torch.nn.functional as F
 from .config import FitConfig
 from .data import RayData
 from .fields import DensityGrid, GridBox
-from .init import grid_bbox, in_view, initial_grid
+from .init import far_pixel_spacing, grid_bbox, in_view, initial_grid
 from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total_loss
 from .renderer import render_field, render_pruned, secondary_rays
 from .sampler import importance_positions, merged_intervals, ray_box, uniform_intervals
 from .smoothness import NormalConsistencyPrior
-from .visible_surface_init import in_front_of_visible_surface, surface_offset, visible_surface
+from .visible_surface_init import in_front_of_visible_surface, seen_free_points, surface_offset, visible_surface
 
 
 class ReconstructionModel:
@@ -78,8 +78,15 @@ class FastModel(ReconstructionModel):
     def _initial(self, res=None, box=None):
         """The start field and its free space on `box`, or on a new box of `res` voxels along the longest side."""
         box = GridBox(self.bbox[0], self.bbox[1], res).to(self.device) if box is None else box
+        seen = None
+        spacing = far_pixel_spacing(self.data)
+        if spacing is not None and spacing > self.fc.carve_seen_free_beyond_voxels * box.voxel:
+            # a coarse sensor: camera carving between the pixel rays too
+            seen = self.free_points_test(box.voxel)(box.centres().reshape(-1, 3).cpu().numpy().astype(np.float64),
+                                                    self.fc.surface_margin_voxels * box.voxel)
+            seen = torch.from_numpy(seen.reshape(box.shape))
         return initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box),
-                            self.visible_surface(box))
+                            self.visible_surface(box), seen_free=seen)
 
     def visible_surface(self, box):
         """`visible_surface` (points, normals) for `box`; it depends on the box's voxel size only, so it
@@ -136,6 +143,18 @@ class FastModel(ReconstructionModel):
             front = in_front_of_visible_surface(self.visible_surface(box), box, torch.from_numpy(vol < iso))
             free = free | front.to(free.device)
         return free.cpu().numpy()
+
+    def free_points_test(self, voxel=None):
+        """`seen_free_points` for the mesh's face test (None with `fast.mesh_seen_free` off; `voxel` given: for
+        the start field's carving, always): the sensor saw through a point between its pixel rays too (its
+        footprint), where no camera ray's march passed."""
+        if voxel is None and not self.fc.mesh_seen_free:
+            return None
+        depth = self.data.visible_depth
+        if self.fc.nearest_free and self.data.nearest_depth is not None:   # as the camera carving: not past a thin part
+            depth = torch.fmin(self.data.nearest_depth, depth)
+        return seen_free_points(self.data, self.meta["camera_to_world"], self.meta["fov_rad"], self.meta["fov_axis"],
+                                self.grid.box.voxel if voxel is None else voxel, depth)
 
     def offset_for(self, voxel):
         return max(self.cfg.loss.secondary_offset_m, self.fc.secondary_offset_voxels * voxel)

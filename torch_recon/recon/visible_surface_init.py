@@ -79,11 +79,14 @@ def _dilate_cube(x: torch.Tensor, r: int) -> torch.Tensor:
 
 
 def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: float = 2.0, k: int = 4,
-                            surface=None):
+                            surface=None, concave_corners: bool = False):
     """Point-to-plane signed distance (m, + behind the surface) of voxel centres within `half_width_voxels`
     of the visible surface (NaN elsewhere): the mean over the k nearest measured points of their tangent
     planes, leaving out planes that disagree with the nearest by more than a voxel (another surface).
     Planar walls give an exactly linear field, so the iso-surface is flat (no grid-aligned steps).
+    concave_corners: where another surface among the 2 k nearest points meets the nearest one's in a
+    concave corner (its point lies in front of the nearest plane) and the voxel lies behind it, the voxel
+    is behind (the larger distance).
     surface: (points, normals) from `visible_surface` when already computed."""
     from scipy.spatial import cKDTree
 
@@ -102,15 +105,25 @@ def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: floa
     cand = torch.nonzero(occ, as_tuple=False).numpy()
     centres = lo + (cand + 0.5) * box.voxel
     tree = cKDTree(pts)
-    k = min(k, len(pts))
-    dist, j = tree.query(centres, k=k, distance_upper_bound=(half_width_voxels + 1.0) * box.voxel)
-    dist, j = dist.reshape(len(cand), k), j.reshape(len(cand), k)
+    kq = min(2 * k if concave_corners else k, len(pts))
+    dist, j = tree.query(centres, k=kq, distance_upper_bound=(half_width_voxels + 1.0) * box.voxel)
+    dist, j = dist.reshape(len(cand), kq), j.reshape(len(cand), kq)
     found = np.isfinite(dist)
     jj = np.where(found, j, 0)
     plane = ((pts[jj] - centres[:, None]) * nrm[jj]).sum(-1)          # + behind the surface
     agree = found & (np.abs(plane - plane[:, :1]) <= box.voxel)
+    agree[:, k:] = False
     wgt = agree * np.exp(-(np.where(found, dist, 0.0) / box.voxel) ** 2)
     val = (wgt * plane).sum(1) / np.maximum(wgt.sum(1), 1e-12)
+    if concave_corners:
+        # a concave corner (the other surface's point lies in front of the nearest one's plane, e.g. a floor
+        # meeting a wall): the solid is behind either surface; the nearest plane alone emptied the voxels
+        # behind the other surface next to the corner (rows of pin-holes along the junction)
+        other = found & ~agree
+        other[:, 0] = False
+        concave = ((pts[jj] - pts[jj[:, :1]]) * nrm[jj[:, :1]]).sum(-1) > 0.5 * box.voxel
+        behind_other = np.where(other & concave & (plane > 0), plane, -np.inf).max(1)
+        val = np.maximum(val, behind_other)
     keep = found[:, 0] & (np.abs(val) <= half_width_voxels * box.voxel)
     sd[tuple(cand[keep].T)] = val[keep]
     return torch.from_numpy(sd)
@@ -147,3 +160,69 @@ def in_front_of_visible_surface(surface, box: GridBox, empty: torch.Tensor,
         idx = idx[np.all((idx >= 0) & (idx < shape), 1)]
         out[tuple(torch.from_numpy(idx).T)] = 1.0
     return (_dilate_cube(out, 1) > 0) & empty.cpu()
+
+
+def seen_free(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_axis: str,
+              margin_voxels: float = 0.5, depth: torch.Tensor | None = None) -> torch.Tensor:
+    """Voxels (nx, ny, nz) bool whose centre the sensor saw through (`seen_free_points`)."""
+    pts = box.centres().reshape(-1, 3).cpu().numpy().astype(np.float64)
+    free = seen_free_points(data, camera_to_world, fov_rad, fov_axis, box.voxel, depth)(pts, margin_voxels * box.voxel)
+    return torch.from_numpy(free.reshape(box.shape))
+
+
+def seen_free_points(data: RayData, camera_to_world, fov_rad: float, fov_axis: str, voxel: float,
+                     depth: torch.Tensor | None = None):
+    """A test `free(points (N, 3), margin_m) -> bool (N,)`: the sensor saw through the point, i.e. it projects
+    into the image and lies more than `margin_m` (along its ray) in front of the visible surface between
+    the four nearest pixels' points. That surface is the bilinear one in inverse depth (exact for a plane)
+    where no point lies more than half a voxel behind another's tangent plane (one plane, or a concave
+    corner: the chord lies in front of both walls), else the nearest point's depth (an occluding or convex
+    edge: what lies between the pixel rays behind the nearer surface is unknown).
+
+    A camera ray's march carves only the voxels it crosses, a line through the grid: where pixel rays lie
+    more than a voxel apart (a coarse sensor; far or grazing surfaces) the voxels between them stay
+    unseen though the pixels' footprints covered them; and a point tested for free space need not be a
+    voxel centre (the mesh's faces are tested a voxel in front of themselves).
+    depth: (P,) range per pixel (default the visible depth; NaN unknown)."""
+    from ..contract.frames import project_points
+
+    h, w = data.height, data.width
+    rng = (data.visible_depth if depth is None else depth).detach().cpu().numpy().astype(np.float64).reshape(h, w)
+    c = data.sensor_origin.detach().cpu().numpy().astype(np.float64)
+    dirs = data.pixel_dirs.detach().cpu().numpy().reshape(h, w, 3).astype(np.float64)
+    valid = np.isfinite(rng) & (rng > 0)
+    x = c + dirs * np.where(valid, rng, 0.0)[..., None]
+    pix_angle = float(np.arccos(np.clip((dirs[0, 0] * dirs[0, 1]).sum(), -1, 1))) if w > 1 else 1e-3
+    nrm = _depth_normals(x, valid, c, 8.0 * pix_angle * np.where(valid, rng, 0.0) + voxel, 0.25 * voxel)
+    zdepth = np.where(valid, rng * (dirs @ -np.asarray(camera_to_world, np.float64)[:3, 2]), np.nan)
+    # cells between pixel centres (j, i) .. (j + 1, i + 1), edge pixels repeated: (h + 1, w + 1) cells
+    jj = np.clip(np.arange(-1, h + 1), 0, h - 1)
+    ii = np.clip(np.arange(-1, w + 1), 0, w - 1)
+    corner = [(jj[:-1, None], ii[None, :-1]), (jj[:-1, None], ii[None, 1:]),
+              (jj[1:, None], ii[None, :-1]), (jj[1:, None], ii[None, 1:])]
+    cz = np.stack([zdepth[a, b] for a, b in corner])                        # (4, h + 1, w + 1)
+    cell_valid = np.all(np.isfinite(cz), 0)
+    one_surface = cell_valid.copy()
+    for a in corner:
+        for b in corner:
+            behind = ((x[b] - x[a]) * nrm[a]).sum(-1)                       # NaN normal: not one surface
+            one_surface &= np.nan_to_num(behind, nan=-np.inf) >= -0.5 * voxel
+    nearest = np.where(np.isfinite(cz), cz, np.inf).min(0)
+
+    def free(points, margin_m: float):
+        pts = np.asarray(points, np.float64).reshape(-1, 3)
+        col, row, z = project_points(camera_to_world, w, h, fov_rad, pts, fov_axis)
+        ok = np.isfinite(col) & np.isfinite(row) & (z > 0) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
+        u, v = col[ok] + 0.5, row[ok] + 0.5       # cell (j, i) spans pixel centres j - 1 .. j (+ 0.5 offset)
+        ci, cj = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+        fu, fv = u - ci, v - cj
+        weights = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = (weights / cz[:, cj, ci]).sum(0)
+            est = np.where(one_surface[cj, ci], 1.0 / inv, nearest[cj, ci])    # camera-space depth of the surface
+        est = np.where(np.isfinite(est), est, -np.inf)                          # no measured depth: not seen free
+        r = np.linalg.norm(pts[ok] - c, axis=1)
+        out = np.zeros(len(pts), bool)
+        out[np.flatnonzero(ok)] = r * (est / z[ok] - 1.0) > margin_m
+        return out
+    return free
