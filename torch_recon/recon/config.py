@@ -72,7 +72,11 @@ class FastConfig:
     carve_spacing_voxels: float = 1.0  # carve with pixels about this many voxels apart at the far surfaces
     explain_shadows: bool = True      # every shadowed segment keeps a blocker: the lit-carved voxel along it
                                       # with the highest shadowed / lit crossing ratio is put back (thin parts)
-    explain_camera_free: bool = True   # ... also a voxel the sensor saw through (parts thinner than a pixel)
+    explain_camera_free: bool = False  # ... also a voxel the sensor saw through (parts thinner than a pixel). Off
+                                      # since session 9: the earliest return (nearest_surface) keeps those parts,
+                                      # and these restorations made fins at objects' edges in front of visible
+                                      # faces; six scenes 128 px (with footprint carving): organic-occluded spurious
+                                      # 2.33 -> 2.03 %, L1 0.0736 -> 0.0521 m, cave-chair hidden R@2cm 0.826 -> 0.880
     explain_score: str = "ratio"      # which carved voxel a shadowed segment gets back: 'ratio' (shadowed / lit
                                       # crossings) or 'spots' (distinct spots' shadows / distinct lit spots + 1)
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
@@ -124,6 +128,13 @@ class FastConfig:
                                          # more than twice this behind it
     plane_free_band_voxels: float = 2.0  # the mesh keeps faces facing completed empty space this close
                                          # to a completed plane
+    # --- surface placement of the mesh (recon/models.py surface_volume) ---
+    mesh_level_shift_voxels: float = 0.0  # the mesh's level moves this far inward (voxels along the ramp). 0.1 on the
+                                          # six scenes (session 9): F@2cm +0.001..+0.017, hidden recall -0.004..-0.023;
+                                          # off (docs/reconstruction.md "Where the object F-score is lost")
+    mesh_hull_inset_voxels: float = 0.0   # the shadow hull's binary boundary (occupied next to free) is placed this far
+                                          # inside the voxel face. 0.35: F@2cm +0.005..+0.025 and hidden recall up on five
+                                          # scenes, organic-occluded -0.034 / -0.045 (its hull lies inside the blob); off
     # --- visible surfaces of the mesh (session 7) ---
     mesh_front_of_visible: bool = True  # the mesh also keeps faces facing the voxels just in front of a measured
                                         # visible point (along its normal): cave-chair start field, sensor
@@ -203,6 +214,12 @@ class FitConfig:
                                                                     f"got {self.fast.thin_part_half_width_voxels}")
         if self.fast.trim_hull_voxels < 0:
             raise SettingsError("fast.trim_hull_voxels", f"expected an integer >= 0 (0: off), got {self.fast.trim_hull_voxels}")
+        if not 0.0 <= self.fast.mesh_hull_inset_voxels <= 0.45:
+            raise SettingsError("fast.mesh_hull_inset_voxels",
+                                f"expected voxels in [0, 0.45] (0: off), got {self.fast.mesh_hull_inset_voxels}")
+        if not -0.5 <= self.fast.mesh_level_shift_voxels <= 0.5:
+            raise SettingsError("fast.mesh_level_shift_voxels",
+                                f"expected voxels in [-0.5, 0.5] (0: off), got {self.fast.mesh_level_shift_voxels}")
         if not self.fast.normal_weight >= 0:
             raise SettingsError("fast.normal_weight", f"expected a weight >= 0 (0: off), got {self.fast.normal_weight}")
         if not 0 < self.fast.normal_max_angle_deg <= 90:

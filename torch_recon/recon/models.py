@@ -264,12 +264,20 @@ class FastModel(ReconstructionModel):
         The ramp is steep (surface_slope per voxel), so opacity at voxel centres is nearly binary and
         marching cubes on it snaps the surface to the midpoint between centres (grid-aligned terraces
         of up to half a voxel). Clipped raw is linear in the signed distance across the surface: the
-        interpolated crossing is the measured surface to a fraction of a voxel."""
+        interpolated crossing is the measured surface to a fraction of a voxel.
+
+        `fast.mesh_level_shift_voxels` moves the level that far inward (raw grows by `surface_slope` per
+        voxel across a ramp); `fast.mesh_hull_inset_voxels` places the surface between a saturated occupied
+        voxel and a saturated free one (the shadow hull's binary boundary, which the ramp never reached)
+        that far inside the midpoint (see `binary_boundary_inset`)."""
         slope = max(self.fc.surface_slope, 1.0)
-        iso = surface_offset(self.grid.density_scale, self.grid.box.voxel, slope)
-        half = max(min(slope, iso - self.fc.raw_free, self.fc.raw_occupied - iso), 1e-3)   # inside the init's clamp
-        raw = self.grid.raw_xyz().detach().clamp(iso - half, iso + half)
-        return raw.cpu().numpy(), iso
+        level = surface_offset(self.grid.density_scale, self.grid.box.voxel, slope) \
+            + self.fc.mesh_level_shift_voxels * slope
+        half = max(min(slope, level - self.fc.raw_free, self.fc.raw_occupied - level), 1e-3)   # inside the init's clamp
+        raw = self.grid.raw_xyz().detach().clamp(level - half, level + half)
+        if self.fc.mesh_hull_inset_voxels > 0:
+            raw = binary_boundary_inset(raw, level, half, self.fc.mesh_hull_inset_voxels)
+        return raw.cpu().numpy(), level
 
     def params_finite(self) -> bool:
         return bool(torch.isfinite(self.grid.raw).all())
@@ -297,6 +305,25 @@ class FastModel(ReconstructionModel):
         self.tau_step = st["tau_step"].to(self.device)
         self.make_optimizer()
         self.optimizer.load_state_dict(st["optimizer"])
+
+
+def binary_boundary_inset(clipped, level: float, half: float, inset_voxels: float) -> torch.Tensor:
+    """Marching cubes crosses from a saturated free voxel (level - half) to a saturated occupied one
+    (level + half) at their midpoint, a voxel face. Where a kept hull voxel holds the part somewhere inside
+    (flat and thin parts, restored blockers) the true surface lies inside that face: lower the occupied voxels
+    next to a saturated free one (6-neighbours) so that this crossing lies `inset_voxels` inside the midpoint.
+    A one-voxel part then keeps a thickness of 1 - 2 inset voxels. (Where whole-voxel carving already put the
+    hull inside the part, the organic blob, it moves the wrong way: off by default, docs/reconstruction.md.)
+    clipped: (nx, ny, nz) raw density clipped to [level - half, level + half]."""
+    occ = clipped >= level + half - 1e-4
+    free = F.pad((clipped <= level - half + 1e-4).float()[None, None], (1, 1, 1, 1, 1, 1))[0, 0]
+    nx, ny, nz = clipped.shape
+    near_free = torch.zeros_like(occ)
+    for dx, dy, dz in ((0, 1, 1), (2, 1, 1), (1, 0, 1), (1, 2, 1), (1, 1, 0), (1, 1, 2)):
+        near_free |= free[dx:dx + nx, dy:dy + ny, dz:dz + nz] > 0
+    out = clipped.clone()
+    out[occ & near_free] = level - half + half / (0.5 + inset_voxels)
+    return out
 
 
 def _depth(r, far, min_opacity):
