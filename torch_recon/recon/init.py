@@ -382,7 +382,8 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     completed empty space next to a completed plane (the second result). Near visible surfaces a
     linear ramp in the point-to-plane signed distance puts the surface at the measured depth to a
     fraction of a voxel (trilinear interpolation keeps a linear ramp linear); behind a visible surface
-    a lit voxel stays free (thin parts keep their thickness).
+    a lit voxel stays free (thin parts keep their thickness), and so does a voxel the sensor saw through
+    (beside an object's silhouette, where the plane of its face would extend).
     surface: `visible_surface(data, box)` (points, normals) when already computed.
     """
     from .beyond_view import lit_side_of_hull, out_of_view_spots, unneeded_beside_view
@@ -439,7 +440,10 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
         if len(beyond):     # ... and the lit side of the hull beside the view (beyond_view.py)
             mesh_free = mesh_free | lit_side_of_hull(data, box, occupied, beyond, off, cfg.step_voxels * box.voxel)
     if sd is not None:
-        near = torch.isfinite(sd) & ((label != 3) | (sd <= 0.5 * box.voxel)) & (label != RESTORED) & (label != NEAREST)
+        # a voxel the sensor saw through lies in front of every measured surface: a face's plane, extended past
+        # the object's silhouette, must not fill it (at 512 px it fattened resolved legs and chair backs)
+        near = (torch.isfinite(sd) & ((label != 3) | (sd <= 0.5 * box.voxel)) & ((label != 2) | (sd <= 0))
+                & (label != RESTORED) & (label != NEAREST))
         raw = torch.where(near, ramp(sd), raw)
     if cfg.thin_part_raw != cfg.raw_occupied:
         raw = torch.where(label == NEAREST, torch.tensor(cfg.thin_part_raw, device=dev), raw)

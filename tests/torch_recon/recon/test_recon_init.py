@@ -60,3 +60,34 @@ def test_normals_of_a_surface_seen_at_a_grazing_angle_next_to_another_surface():
     n = _depth_normals(x, valid, np.array([0.0, 0.0, 0.0]), np.full((h, w), 0.2), tol=0.01)
     assert np.all(np.abs(n[5:, 2:-2, 2]) > 0.99), n[5:, 2:-2]
     assert np.all(np.abs(n[:3, 2:-2, 1]) > 0.99), n[:3, 2:-2]
+
+
+def test_space_the_sensor_saw_through_beside_an_objects_edge_starts_empty():
+    """The visible-surface ramp must not fill voxels the camera rays crossed beyond an object's silhouette.
+    The box's front face (normal -y) extended sideways puts the voxels beside the box, behind that plane,
+    at a positive signed distance, though the sensor saw the floor through them; at 512 px the same ramp
+    grew cave-chair's resolved legs and chair back into lumps several voxels wide (depth L1 0.073 m)."""
+    from tests.support.recon_fixtures import BOX_HI, BOX_LO, box_floor_measurements
+    from tests.torch_recon.recon.test_recon_fit import small_config
+    from torch_recon.recon.data import build_ray_data
+    from torch_recon.recon.init import evidence_grid, grid_bbox, in_view, initial_grid
+    from torch_recon.recon.visible_surface_init import surface_offset
+
+    meas = box_floor_measurements(32)
+    data = build_ray_data(meas)
+    cfg = small_config(steps=0).fast
+    box = GridBox(*grid_bbox(data, cfg.resolution, cfg.bbox_margin_voxels), cfg.resolution)
+    view = in_view(data, box, np.asarray(meas.camera_to_world), meas.fov_rad, meas.fov_axis)
+    label, _ = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, 0.0, cfg.step_voxels,
+                             cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
+                             explain_shadow_rays=cfg.explain_shadows, explain_camera_free=cfg.explain_camera_free,
+                             nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface)
+    raw = initial_grid(data, box, cfg, 0.0, view)[0].raw_xyz().detach()
+    centres = box.centres()
+    beside = ((centres[..., 0].abs() > BOX_HI[0]) & (centres[..., 1] > BOX_LO[1]) & (centres[..., 1] < BOX_HI[1])
+              & (centres[..., 2] < BOX_HI[2]))
+    seen_through = label == 2
+    assert int((seen_through & beside).sum()) > 20
+    # never behind a measured surface: at most the ramp's value at the surface (before: 4.0, fully occupied)
+    at_surface = surface_offset(cfg.density_scale, box.voxel, cfg.surface_slope)
+    assert float(raw[seen_through].max()) <= at_surface + 1e-4
