@@ -116,9 +116,12 @@ class FastConfig:
                                       # front of the floor is not carved by the pixel that sees past it
     nearest_surface: bool = True      # ... and that nearest surface is occupied where the strongest return lies
                                       # more than a voxel behind it (the thin part itself)
-    thin_part_edges: bool = True      # ... also beside a broad visible surface at that range (False: a silhouette
-                                      # edge the visible surface holds marks no voxel). False with centre 'mean':
-                                      # cave-chair F@2cm 0.810 -> 0.865, thin-structures 0.750 -> 0.721 (lamp)
+    thin_part_edges: bool = False     # ... also beside a broad visible surface at that range (False: a silhouette
+                                      # edge the visible surface holds marks no voxel: no voxel-wide frame round
+                                      # the chair). Session 9, six scenes, F@2cm True -> False: cave-chair 0.867
+                                      # -> 0.885, curved-wall 0.864 -> 0.890, outside-fov 0.610 -> 0.620, the
+                                      # other three within 0.002 (legs and pole whole). With centre 'mean' too:
+                                      # cave-chair 0.917 but thin-structures 0.804 -> 0.784 (pole breaks)
     thin_part_centre: str = "off"     # ... a thin part's point: 'depth' a quarter pixel footprint behind the
                                       # earliest return (its middle); 'mean' also the mean of its 3 x 3
                                       # neighbours' at the same range; 'seen' only of those seen strongest
