@@ -225,7 +225,7 @@ def test_thin_part_points_lie_on_the_part_not_on_the_pixels_beside_it():
     """A 2 cm post on the boundary of two pixel columns (3.1 cm footprints) that both see its front earliest:
     centred, the points lie between the columns, inside the post (within 6 mm of its axis); uncentred they
     are on its front, each column's half a footprint off the axis."""
-    from torch_recon.recon.init import thin_part_points
+    from torch_recon.recon.thin_parts import thin_part_points
 
     xy = np.array([0.5312, 0.5])
     data = _post_before_a_wall(post_xy=xy, front=True)
