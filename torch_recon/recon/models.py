@@ -19,7 +19,8 @@ from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total
 from .renderer import render_field, render_pruned, secondary_rays
 from .sampler import importance_positions, merged_intervals, ray_box, uniform_intervals
 from .smoothness import NormalConsistencyPrior
-from .visible_surface_init import in_front_of_visible_surface, seen_free_points, surface_offset, visible_surface
+from .visible_surface_init import (in_front_of_visible_surface, seen_free, seen_free_points, surface_offset,
+                                   visible_surface)
 
 
 class ReconstructionModel:
@@ -82,9 +83,9 @@ class FastModel(ReconstructionModel):
         spacing = far_pixel_spacing(self.data)
         if spacing is not None and spacing > self.fc.carve_seen_free_beyond_voxels * box.voxel:
             # a coarse sensor: camera carving between the pixel rays too
-            seen = self.free_points_test(box.voxel)(box.centres().reshape(-1, 3).cpu().numpy().astype(np.float64),
-                                                    self.fc.surface_margin_voxels * box.voxel)
-            seen = torch.from_numpy(seen.reshape(box.shape))
+            m = self.meta
+            seen = seen_free(self.data, box, m["camera_to_world"], m["fov_rad"], m["fov_axis"],
+                             self.fc.surface_margin_voxels, self._seen_depth())
         return initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box),
                             self.visible_surface(box), seen_free=seen)
 
@@ -144,17 +145,21 @@ class FastModel(ReconstructionModel):
             free = free | front.to(free.device)
         return free.cpu().numpy()
 
-    def free_points_test(self, voxel=None):
-        """`seen_free_points` for the mesh's face test (None with `fast.mesh_seen_free` off; `voxel` given: for
-        the start field's carving, always): the sensor saw through a point between its pixel rays too (its
-        footprint), where no camera ray's march passed."""
-        if voxel is None and not self.fc.mesh_seen_free:
-            return None
+    def _seen_depth(self):
+        """Per-pixel range the sensor saw through: as the camera carving, not past a thin part's earliest return."""
         depth = self.data.visible_depth
-        if self.fc.nearest_free and self.data.nearest_depth is not None:   # as the camera carving: not past a thin part
+        if self.fc.nearest_free and self.data.nearest_depth is not None:
             depth = torch.fmin(self.data.nearest_depth, depth)
-        return seen_free_points(self.data, self.meta["camera_to_world"], self.meta["fov_rad"], self.meta["fov_axis"],
-                                self.grid.box.voxel if voxel is None else voxel, depth)
+        return depth
+
+    def free_points_test(self):
+        """`seen_free_points` for the mesh's face test (None with `fast.mesh_seen_free` off): the sensor saw
+        through a point between its pixel rays too (its footprint), where no camera ray's march passed."""
+        if not self.fc.mesh_seen_free:
+            return None
+        m = self.meta
+        return seen_free_points(self.data, m["camera_to_world"], m["fov_rad"], m["fov_axis"], self.grid.box.voxel,
+                                self._seen_depth())
 
     def offset_for(self, voxel):
         return max(self.cfg.loss.secondary_offset_m, self.fc.secondary_offset_voxels * voxel)

@@ -211,7 +211,8 @@ def test_a_coarse_sensor_carves_between_its_pixel_rays():
     added = seen.free & ~plain.free
     assert int(added.sum()) > 0
     box = seen.grid.box
-    test = seen.free_points_test(box.voxel)
-    centres = box.centres().reshape(-1, 3).numpy().astype(np.float64)
-    seen_through = torch.from_numpy(test(centres, cfg.fast.surface_margin_voxels * box.voxel).reshape(box.shape))
+    from torch_recon.recon.visible_surface_init import seen_free
+
+    seen_through = seen_free(data, box, meta["camera_to_world"], meta["fov_rad"], meta["fov_axis"],
+                             cfg.fast.surface_margin_voxels, data.visible_depth)
     assert bool(seen_through[added].all())
