@@ -173,3 +173,23 @@ def measurement_accuracy(meas, truths: list[SpotTruth], bin_width_m: float) -> d
             "path_p95_mm": float(np.percentile(np.abs(e), 95) * 1e3) if e.size else float("nan"),
             "path_bias_mm": float(np.median(e) * 1e3) if e.size else float("nan"),
             "path_within_half_bin": float(np.mean(np.abs(e) <= 0.5 * bin_width_m)) if e.size else float("nan")}
+
+
+def truth_label_measurements(meas, truths: list[SpotTruth]):
+    """A copy of `meas` whose lit / shadow labels are the ray-cast truth's (lit: lit fraction >= 1/2), for
+    fits that tell what perfect shadow decisions would give. A pixel turned lit takes the truth's path where
+    it had no measured one; pixels without a surface in the truth are excluded."""
+    import copy
+    out = copy.deepcopy(meas)
+    for sm, t in zip(out.spots, truths):
+        known = np.isfinite(t.lit_fraction)
+        usable = ~np.asarray(sm.excluded, bool) & known
+        lit = usable & (np.nan_to_num(t.lit_fraction, nan=0.0) >= 0.5)
+        measured = np.asarray(sm.signal, bool) & np.isfinite(sm.path_length)
+        sm.path_length = np.where(lit, np.where(measured, sm.path_length, t.path_m), np.nan).astype(np.float32)
+        if sm.first_return_path is not None:
+            sm.first_return_path = np.where(lit, np.fmin(sm.first_return_path, sm.path_length),
+                                            np.nan).astype(np.float32)
+        sm.signal, sm.shadow = lit, usable & ~lit
+        sm.excluded = np.asarray(sm.excluded, bool) | ~known
+    return out
