@@ -64,6 +64,8 @@ class PreprocessSettings:
                                        # shadowed, left unlabelled (neither lit nor shadow); 0: off
     partial_shadow_z: float = 2.0      # ... and the deficit exceeds this many Poisson standard deviations
     partial_shadow_edges: bool = True  # also the rim of a shadow: dimmer than ratio x the lit side
+    partial_shadow_rim: str = "near"   # the rim's bound: 'near' = the nearest lit pixel's photons, 'trend' =
+                                       # the lit side extrapolated, min(s1, 2 s1 - s2) (session 8; shadow_decision)
     first_return_fraction: float = 0.1  # a pixel's earliest return counts when its filtered peak exceeds this x
                                        # the strongest one's (above background): a thin part in front of a wall
                                        # fills part of the pixel and returns first (0: off)
@@ -78,6 +80,7 @@ class PreprocessSettings:
 
     SETTINGS_META = {"refine": {"choices": ("lut", "gaussian", "parabola", "none")},
                      "background": {"choices": ("none", "median")},
+                     "partial_shadow_rim": {"choices": ("near", "trend")},
                      "photon_statistics": {"choices": ("auto", "poisson", "none")}, "shadow_threshold": {"range": (0.0, 1.0)},
                      "gate_max_m": {"unit": "m"}}
 
@@ -90,6 +93,8 @@ class PreprocessSettings:
             raise PreprocessError(f"refine must be 'lut', 'gaussian', 'parabola' or 'none', got {self.refine!r}")
         if self.background not in ("none", "median"):
             raise PreprocessError(f"background must be 'none' or 'median', got {self.background!r}")
+        if self.partial_shadow_rim not in ("near", "trend"):
+            raise PreprocessError(f"partial_shadow_rim must be 'near' or 'trend', got {self.partial_shadow_rim!r}")
         if not 0.0 <= self.partial_shadow_ratio < 1.0:
             raise PreprocessError(f"partial_shadow_ratio must be in [0, 1), got {self.partial_shadow_ratio}")
         if self.photon_statistics not in ("auto", "poisson", "none"):

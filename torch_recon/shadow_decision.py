@@ -86,8 +86,11 @@ def partial_shadow_mask(counts, variance, path, lit, excluded, bin_width_m, sett
     its neighbours. For each of 4 directions and neighbour pairs at (1, 1), (1, 2), (2, 1) pixels on either
     side, both lit and within `same_surface_bins` of the pixel's path, the dimmer of the two is a lower
     bound of what the pixel would receive lit, E (the largest over pairs). At the rim of a shadow (one
-    side dark, `partial_shadow_edges`) the lit side's trend extrapolated to the pixel, min(s1, 2 s1 - s2),
-    is the bound: shading that falls steeply towards a depth or attached-shadow edge is no cast shadow.
+    side dark, `partial_shadow_edges`) the bound is the near lit neighbour s1 (`partial_shadow_rim`
+    'near'), or its trend extrapolated to the pixel, min(s1, 2 s1 - s2) ('trend': shading that falls
+    steeply towards a depth or attached-shadow edge is no cast shadow, but neither is a rim whose s1 is
+    itself partly shadowed, as where a shadow's edge crosses pixels at a slant: 'trend' calls lit most
+    rim pixels under half lit there).
     The pixel is a partial shadow when counts < ratio E by more than `partial_shadow_z` Poisson standard
     deviations of the difference (variance: the pixel's gated photons, at least ratio E, + ratio^2 that of
     the neighbour; without `poisson`, i.e. expected values rather than counts, any deficit counts).
@@ -128,7 +131,8 @@ def lit_neighbour_bound(counts, variance, path, lit, excluded, bin_width_m, sett
                 for near, far, other in ((-1, -2, 1), (1, 2, -1)):
                     sn, okn, vn, _, _ = nb[near]
                     rim = okn & nb[other][3] & nb[far][4]
-                    cands.append((np.where(rim, np.minimum(sn, 2 * sn - nb[far][0]), 0.0), vn))
+                    bound = sn if settings.partial_shadow_rim == "near" else np.minimum(sn, 2 * sn - nb[far][0])
+                    cands.append((np.where(rim, bound, 0.0), vn))
             for e, ev in cands:
                 take = e > best
                 best, best_var = np.where(take, e, best), np.where(take, ev, best_var)

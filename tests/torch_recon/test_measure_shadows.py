@@ -79,6 +79,23 @@ def test_shadow_rim_follows_the_lit_fraction_not_steep_shading():
     assert not _partial(counts, path, lit, partial_shadow_edges=False)[:, 40].any()
 
 
+def test_slanted_shadow_rim_is_a_shadow_though_its_lit_neighbour_is_dim():
+    """A cast shadow's edge crossing pixels at a slant: the rim pixel is 20 % lit, its lit neighbour only 60 %.
+    The lit side's trend (min(s1, 2 s1 - s2) = 0.2 of full) would call the rim lit (its segment then carves
+    through the blocker's edge: dark-room's chair lost hidden recall so); the near neighbour (0.6) does not."""
+    rng = np.random.default_rng(3)
+    lam, path = _lit_wall(rng, 2000.0)
+    lit = np.ones(lam.shape, bool)
+    lam[:, 41:] = 0.0
+    lit[:, 41:] = False
+    lam[:, 40] *= 0.2
+    lam[:, 39] *= 0.6
+    counts = rng.poisson(lam).astype(np.float64)
+    assert _partial(counts, path, lit)[2:-2, 40].mean() >= 0.95
+    assert _partial(counts, path, lit, partial_shadow_rim="trend")[2:-2, 40].mean() <= 0.05
+    assert not _partial(counts, path, lit)[:, :39].any()        # the plain wall stays lit
+
+
 def _filter(counts, background=0.0):
     c = np.asarray(counts, np.float64)
     return FilterOutput(confidence=(c > 0).astype(np.float32), amplitude=c.astype(np.float32), path=np.full(c.shape, 6.0),
@@ -134,8 +151,15 @@ def test_truth_and_accuracy_on_an_analytic_scene(occluder_poisson):
     m = preprocess_dataset(exact)
     acc = measurement_accuracy(m, truths, exact.sensor.bin_width_m)
     assert acc["n_truth_shadow"] > 50
-    assert acc["shadow_precision"] > 0.97 and acc["shadow_recall"] > 0.97, acc
-    assert acc["path_median_mm"] < 0.5 and acc["false_shadow_rate"] < 0.02, acc
+    assert acc["shadow_recall"] > 0.97, acc
+    # the rim bound 'near' calls lit rim pixels whose shading halves within a pixel (32 px over 90 degrees)
+    # shadow: precision 0.93 here; the lit side's trend keeps them lit (the objects' fits gain from 'near')
+    assert acc["shadow_precision"] > 0.9, acc
+    trend = measurement_accuracy(preprocess_dataset(exact, PreprocessSettings(partial_shadow_rim="trend")), truths,
+                                 exact.sensor.bin_width_m)
+    assert trend["shadow_precision"] > 0.97 and trend["shadow_recall"] > 0.97, trend
+    assert trend["false_shadow_rate"] < 0.02, trend
+    assert acc["path_median_mm"] < 0.5 and acc["false_shadow_rate"] < 0.025, acc
     # the truth-label copy (hidden_causes' perfect-label fits) scores 1 and leaves the measured data as it was
     from torch_recon.measurement_truth import truth_label_measurements
     signal0 = m.spots[0].signal.copy()
