@@ -81,6 +81,9 @@ class FastConfig:
                                       # 2.33 -> 2.03 %, L1 0.0736 -> 0.0521 m, cave-chair hidden R@2cm 0.826 -> 0.880
     explain_score: str = "ratio"      # which carved voxel a shadowed segment gets back: 'ratio' (shadowed / lit
                                       # crossings) or 'spots' (distinct spots' shadows / distinct lit spots + 1)
+    explain_lead_voxels: float = 0.0  # a shadowed segment's blocker is also looked for this far before the offset
+                                      # its segment skips next to its surface point x (carved voxels only there):
+                                      # a part the sensor sees shadows its own points (recon/init.py)
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
     surface_margin_voxels: float = 1.0  # camera free space stops this far before the visible surface
     occupancy_threshold: float = 0.01  # cells whose neighbourhood has sigma * voxel below this are skipped
@@ -232,6 +235,9 @@ class FitConfig:
         if not 0.0 <= self.fast.thin_part_half_width_voxels <= 0.5:
             raise SettingsError("fast.thin_part_half_width_voxels", f"expected a value in [0, 0.5] (voxels; 0: off), "
                                                                     f"got {self.fast.thin_part_half_width_voxels}")
+        if not self.fast.explain_lead_voxels >= 0:
+            raise SettingsError("fast.explain_lead_voxels",
+                                f"expected voxels >= 0 (0: off), got {self.fast.explain_lead_voxels}")
         if self.fast.trim_hull_voxels < 0:
             raise SettingsError("fast.trim_hull_voxels", f"expected an integer >= 0 (0: off), got {self.fast.trim_hull_voxels}")
         if not 0.0 <= self.fast.mesh_hull_inset_voxels <= 0.45:
