@@ -112,3 +112,11 @@ def test_a_point_on_a_thin_part_is_shadowed_by_the_part_not_by_a_voxel_beside_it
         assert explain_shadows(box, label, lit, shadow, *seg, step=0.05, lead=lead) == 1
         assert int(label[want]) == RESTORED, lead
         assert int((label == RESTORED).sum()) == 1
+
+
+def test_explain_lead_refuses_a_negative_distance():
+    from torch_recon.contract.errors import SettingsError
+    from torch_recon.recon.config import FitConfig, override
+
+    with pytest.raises(SettingsError, match=r"fast\.explain_lead_voxels"):
+        override(FitConfig(), ["fast.explain_lead_voxels=-1"])
