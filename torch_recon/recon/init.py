@@ -27,7 +27,7 @@ from ..contract.errors import UnconstrainedMeasurementsError
 from .data import RayData
 from .fields import DensityGrid, GridBox
 from .sampler import ray_box
-from .thin_parts import thin_part_points
+from .thin_parts import thin_part_signed_distance, thin_part_voxels
 from .visible_surface_init import _dilate_cube, surface_offset, surface_signed_distance, visible_surface
 
 
@@ -237,13 +237,10 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     idx, inside = box.cell_index(x_all[okx])
     flat = (idx[:, 0] * box.shape[1] + idx[:, 1]) * box.shape[2] + idx[:, 2]
     surface += torch.bincount(flat[inside], minlength=n)
-    nearest = torch.zeros(n, dtype=torch.long, device=dev)
+    nearest = torch.zeros(n, dtype=torch.bool, device=dev)
     if nearest_surface and data.nearest_depth is not None:
         # the nearest surface of a pixel whose strongest return lies behind it: a part thinner than the pixel
-        for pts in thin_part_points(data, box.voxel, edges=thin_part_edges, centre=thin_part_centre):
-            idx, inside = box.cell_index(pts)
-            flat = (idx[:, 0] * box.shape[1] + idx[:, 1]) * box.shape[2] + idx[:, 2]
-            nearest += torch.bincount(flat[inside], minlength=n)
+        nearest = thin_part_voxels(data, box, edges=thin_part_edges, centre=thin_part_centre).reshape(-1)
     # shadow carving: lit pairs on the carving pixels only; shadowed pairs count occluder evidence
     on_sub = torch.zeros(data.height * data.width, dtype=torch.bool, device=dev)
     on_sub[sub] = True
@@ -256,7 +253,7 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     label[lit_count >= max(1, carve_min_lit)] = 3
     label[cam_free > 0] = 2
     label[surface > 0] = 1
-    label[(nearest > 0) & (surface == 0)] = NEAREST
+    label[nearest & (surface == 0)] = NEAREST
     if consistent:
         seg = _segments(data, data.shadowed & on_sub[data.pair_pixel], off)
         score = None
@@ -388,4 +385,10 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
         # a part under a pixel wide: its voxel's centre this far inside the surface (thinner than a whole voxel)
         raw = torch.where(label == NEAREST, ramp(torch.tensor(cfg.thin_part_half_width_voxels * box.voxel,
                                                               device=dev)), raw)
+    if cfg.thin_part_radius_voxels > 0 and cfg.nearest_surface and data.nearest_depth is not None:
+        # a tube round the thin parts' points (to a fraction of a voxel) in place of their whole voxels
+        tube = thin_part_signed_distance(data, box, cfg.thin_part_radius_voxels * box.voxel, cfg.thin_part_edges,
+                                         cfg.thin_part_centre).to(dev)
+        below = torch.where(label == NEAREST, torch.tensor(cfg.raw_free, device=dev), raw)
+        raw = torch.where(torch.isfinite(tube), torch.maximum(below, ramp(tube)), raw)
     return DensityGrid.from_xyz(box, raw.float(), cfg.density_scale), mesh_free
