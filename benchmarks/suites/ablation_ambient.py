@@ -148,11 +148,11 @@ def _cell(r):
     if runners.failure(r):
         return runners.failure(r)
     f1 = "-" if r.get("shadow_f1") is None else f"{r['shadow_f1']:.2f}"
-    return f"{r['depth_l1_m']:.3f} m (F1 {f1})"
+    return f"{r['depth_l1_m']:.3f} m, F@2cm {fmt(r.get('obj_f2cm'), '.2f')} (shadow F1 {f1})"
 
 
 def readme(results) -> str:
-    """Depth L1 and shadow F1, ambient level x variant."""
+    """Depth L1, object F@2cm and shadow F1, ambient level x variant."""
     rows = results["rows"]
     lines = ["| ambient photons / pixel / bin | " + " | ".join(VARIANTS) + " |", "|" + "---|" * (len(VARIANTS) + 1)]
     for amb in dict.fromkeys(r["ambient_per_bin"] for r in rows):
@@ -191,5 +191,5 @@ def plot(rows, settings, path) -> None:
 SUITE = Suite("ablation_ambient", "ablation: ambient light, lidar +- time gate vs intensity (RGB) shadows",
               quick=Settings(levels=("0", "1"), resolution=32, grid=48, steps=20, budget_s=60.0, test_views=6,
                              test_view_resolution=32),
-              full=Settings(levels=("0", "0.1", "1", "10"), steps=None, budget_s=60.0), run=run, plot=plot,
+              full=Settings(levels=("0", "0.1", "1", "10")), run=run, plot=plot,
               readme=readme, row_id=("method", "scene", "level"))
