@@ -150,10 +150,12 @@ def plot(rows, settings, path):
         bx.plot(x, values(rs, "obj_f2cm"), "o-", color=colour, label=f"{scene} object F@2cm")
         bx.plot(x, values(rs, "hidden_recall_2cm"), "s--", color=colour, label=f"{scene} hidden recall@2cm")
     ax.set_ylabel("test-view depth L1 (m)")
+    bx.set_ylabel("object F@2cm, hidden recall@2cm")
     bx.axhline(0.9, color="grey", lw=0.8, ls=":")
     bx.set_ylim(0, 1)
     for a in (ax, bx):
         a.set_xticks(x, levels)
+        a.set_xlabel("level")
         a.grid(alpha=0.3, axis="y")
         a.legend(fontsize=7)
     grid = "the mode's grid" if settings.grid is None else f"grid {settings.grid}"

@@ -81,3 +81,25 @@ def test_ambient_table_cell_has_object_fscore():
            "shadow_f1": 0.95}
     text = ablation_ambient.readme({"rows": [row]})
     assert "0.041 m, F@2cm 0.87 (shadow F1 0.95)" in text
+
+
+def test_integrated_dataset_keeps_the_labelled_objects(tmp_path):
+    """The temporal ablation's coarser-bin copy carries the objects' meshes (evaluate's object metrics need them)."""
+    import json
+    import shutil
+
+    from benchmarks.harness.datasets import integrate_bins
+    from tests.conftest import make_synthetic_dataset
+    from torch_recon.contract.dataset import load_dataset
+
+    src = tmp_path / "src"
+    make_synthetic_dataset(src, bins=40, window_bins=8, spots=2)
+    (src / "ground_truth" / "objects").mkdir()
+    shutil.copy(src / "ground_truth" / "mesh.ply", src / "ground_truth" / "objects" / "box.ply")
+    man = json.loads((src / "dataset.json").read_text())
+    man["ground_truth"]["objects"] = [{"name": "box", "mesh_file": "ground_truth/objects/box.ply"}]
+    (src / "dataset.json").write_text(json.dumps(man))
+    assert [o.name for o in load_dataset(src).manifest.ground_truth.objects] == ["box"]
+    out = load_dataset(integrate_bins(src, tmp_path / "dst", 2))
+    assert [o.mesh_file for o in out.manifest.ground_truth.objects] == ["ground_truth/objects/box.ply"]
+    assert (tmp_path / "dst" / "ground_truth" / "objects" / "box.ply").is_file()
