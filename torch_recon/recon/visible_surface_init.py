@@ -79,7 +79,7 @@ def _dilate_cube(x: torch.Tensor, r: int) -> torch.Tensor:
 
 
 def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: float = 2.0, k: int = 4,
-                            surface=None, concave_corners: bool = False):
+                            surface=None, concave_corners: bool = False, corner_points: np.ndarray | None = None):
     """Point-to-plane signed distance (m, + behind the surface) of voxel centres within `half_width_voxels`
     of the visible surface (NaN elsewhere): the mean over the k nearest measured points of their tangent
     planes, leaving out planes that disagree with the nearest by more than a voxel (another surface).
@@ -87,6 +87,9 @@ def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: floa
     concave_corners: where another surface among the 2 k nearest points meets the nearest one's in a
     concave corner (its point lies in front of the nearest plane) and the voxel lies behind it, the voxel
     is behind (the larger distance).
+    corner_points: bool (N,) over the surface points: only these can be that other surface (the room's
+    bounding planes, `unobserved.on_planes`: an object's own concave corners, a seat meeting its back,
+    keep the nearest plane; default every point).
     surface: (points, normals) from `visible_surface` when already computed."""
     from scipy.spatial import cKDTree
 
@@ -121,6 +124,8 @@ def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: floa
         # behind the other surface next to the corner (rows of pin-holes along the junction)
         other = found & ~agree
         other[:, 0] = False
+        if corner_points is not None:
+            other &= np.asarray(corner_points, bool)[jj]
         concave = ((pts[jj] - pts[jj[:, :1]]) * nrm[jj[:, :1]]).sum(-1) > 0.5 * box.voxel
         behind_other = np.where(other & concave & (plane > 0), plane, -np.inf).max(1)
         val = np.maximum(val, behind_other)
