@@ -158,8 +158,9 @@ class FastModel(ReconstructionModel):
         if not self.fc.mesh_seen_free:
             return None
         m = self.meta
+        import os
         return seen_free_points(self.data, m["camera_to_world"], m["fov_rad"], m["fov_axis"], self.grid.box.voxel,
-                                self._seen_depth())
+                                self._seen_depth(), corner_planes=os.environ.get("JX_CP") == "1")
 
     def offset_for(self, voxel):
         return max(self.cfg.loss.secondary_offset_m, self.fc.secondary_offset_voxels * voxel)
