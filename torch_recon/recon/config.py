@@ -159,6 +159,9 @@ class FastConfig:
     mesh_seen_free: bool = True       # ... and faces facing a point the sensor's pixel footprints saw through
                                       # (between pixel rays; visible_surface_init.seen_free_points): curved-wall
                                       # and 64 px sensors' pin-holes (docs/reconstruction.md, session 9)
+    seen_free_corners: bool = False   # ... where the four pixels' points meet in a concave corner, the surface
+                                      # between them is the nearest of their tangent planes along the ray (the
+                                      # corner itself), not the chord that cuts it (mesh test and 64 px carving)
 
 
 @dataclass

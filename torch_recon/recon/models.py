@@ -85,7 +85,7 @@ class FastModel(ReconstructionModel):
             # a coarse sensor: camera carving between the pixel rays too
             m = self.meta
             seen = seen_free(self.data, box, m["camera_to_world"], m["fov_rad"], m["fov_axis"],
-                             self.fc.surface_margin_voxels, self._seen_depth())
+                             self.fc.surface_margin_voxels, self._seen_depth(), self.fc.seen_free_corners)
         return initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box),
                             self.visible_surface(box), seen_free=seen)
 
@@ -158,9 +158,8 @@ class FastModel(ReconstructionModel):
         if not self.fc.mesh_seen_free:
             return None
         m = self.meta
-        import os
         return seen_free_points(self.data, m["camera_to_world"], m["fov_rad"], m["fov_axis"], self.grid.box.voxel,
-                                self._seen_depth(), corner_planes=os.environ.get("JX_CP") == "1")
+                                self._seen_depth(), corner_planes=self.fc.seen_free_corners)
 
     def offset_for(self, voxel):
         return max(self.cfg.loss.secondary_offset_m, self.fc.secondary_offset_voxels * voxel)

@@ -184,10 +184,11 @@ def in_front_of_visible_surface(surface, box: GridBox, empty: torch.Tensor,
 
 
 def seen_free(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_axis: str,
-              margin_voxels: float = 0.5, depth: torch.Tensor | None = None) -> torch.Tensor:
+              margin_voxels: float = 0.5, depth: torch.Tensor | None = None, corner_planes: bool = False) -> torch.Tensor:
     """Voxels (nx, ny, nz) bool whose centre the sensor saw through (`seen_free_points`)."""
     pts = box.centres().reshape(-1, 3).cpu().numpy().astype(np.float64)
-    free = seen_free_points(data, camera_to_world, fov_rad, fov_axis, box.voxel, depth)(pts, margin_voxels * box.voxel)
+    free = seen_free_points(data, camera_to_world, fov_rad, fov_axis, box.voxel, depth,
+                            corner_planes)(pts, margin_voxels * box.voxel)
     return torch.from_numpy(free.reshape(box.shape))
 
 
@@ -198,7 +199,11 @@ def seen_free_points(data: RayData, camera_to_world, fov_rad: float, fov_axis: s
     the four nearest pixels' points. That surface is the bilinear one in inverse depth (exact for a plane)
     where no point lies more than half a voxel behind another's tangent plane (one plane, or a concave
     corner: the chord lies in front of both walls), else the nearest point's depth (an occluding or convex
-    edge: what lies between the pixel rays behind the nearer surface is unknown).
+    edge: what lies between the pixel rays behind the nearer surface is unknown). corner_planes: in the
+    first case the surface is the farther of that and the nearest of the four points' tangent planes along
+    the point's ray (a concave corner: the ray stays in the room until it meets either wall; the chord cut
+    the corner, and a coarse sensor's corner faces lay behind it), at most the points' depth spread
+    beyond the deepest point.
 
     A camera ray's march carves only the voxels it crosses, a line through the grid: where pixel rays lie
     more than a voxel apart (a coarse sensor; far or grazing surfaces) the voxels between them stay
