@@ -84,6 +84,11 @@ class FastConfig:
                                       # 2.33 -> 2.03 %, L1 0.0736 -> 0.0521 m, cave-chair hidden R@2cm 0.826 -> 0.880
     explain_score: str = "ratio"      # which carved voxel a shadowed segment gets back: 'ratio' (shadowed / lit
                                       # crossings) or 'spots' (distinct spots' shadows / distinct lit spots + 1)
+    explain_lead_voxels: float = 1.5  # a shadowed segment's blocker is also looked for this far before the offset
+                                      # its segment skips next to its surface point x (carved voxels only there;
+                                      # 1.5 = the whole offset): a leg the sensor sees shadows its own points, and
+                                      # the blocker landed on the voxel beside it. Session 10, six scenes 0 -> 1.5:
+                                      # F@2cm -0.001..+0.006, hidden R -0.002..+0.008, L1 lower on all six; 0: off
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
     surface_margin_voxels: float = 1.0  # camera free space stops this far before the visible surface
     occupancy_threshold: float = 0.01  # cells whose neighbourhood has sigma * voxel below this are skipped
@@ -131,6 +136,16 @@ class FastConfig:
                                       # there; 'off' the earliest return
     thin_part_raw: float = 4.0        # raw density those voxels start at (raw_occupied: 4; higher: the training
                                       # steps of the pixels that see past the part cannot empty it in 100 steps)
+    thin_part_radius_voxels: float = 0.0  # > 0: a thin part starts as a tube this many voxels in radius round its points
+                                      # (a ramp in the distance to them, `thin_part_signed_distance`: placed to a
+                                      # fraction of a voxel); 0: its voxels whole (the part at their centres).
+                                      # 0.4 with 'mean' + 'frozen': thin-structures 0.784 / 0.820 (no gain)
+    thin_part_training: str = "free"  # what training may do to the voxels holding a thin part's point
+                                      # (recon/thin_parts.py thin_part_voxels): 'free' as every voxel; 'frozen'
+                                      # keep their start value (gradient masked); 'grow' only raise it (the pixels
+                                      # seeing past a one-voxel part cannot erode it). With centre 'mean' (session 10):
+                                      # thin-structures 0.784 / 0.803 -> 0.788 / 0.832 F@2cm / hidden R (table leg
+                                      # kept), cave-chair 0.917 / 0.894, curved-wall 0.920 / 0.928; lamp pole still thin
     thin_part_half_width_voxels: float = 0.0  # > 0: those voxels start this far inside the surface (a part thinner
                                       # than a voxel); 0: fully occupied. thin-structures 0.3: start better,
                                       # trained worse (F@2cm table 0.792 -> 0.775; training erodes it)
@@ -234,6 +249,9 @@ class FitConfig:
         if self.fast.surface_concave_corners not in ("off", "planes", "all"):
             raise SettingsError("fast.surface_concave_corners", f"expected 'off', 'planes' or 'all', got "
                                                                 f"{self.fast.surface_concave_corners!r}")
+        if self.fast.thin_part_training not in ("free", "frozen", "grow"):
+            raise SettingsError("fast.thin_part_training", f"expected 'free', 'frozen' or 'grow', got "
+                                                            f"{self.fast.thin_part_training!r}")
         if self.fast.explain_score not in ("ratio", "spots"):
             raise SettingsError("fast.explain_score", f"expected 'ratio' or 'spots', got {self.fast.explain_score!r}")
         if not math.isfinite(self.fast.thin_part_raw) or self.fast.thin_part_raw < self.fast.raw_occupied:
@@ -242,6 +260,12 @@ class FitConfig:
         if not 0.0 <= self.fast.thin_part_half_width_voxels <= 0.5:
             raise SettingsError("fast.thin_part_half_width_voxels", f"expected a value in [0, 0.5] (voxels; 0: off), "
                                                                     f"got {self.fast.thin_part_half_width_voxels}")
+        if not self.fast.explain_lead_voxels >= 0:
+            raise SettingsError("fast.explain_lead_voxels",
+                                f"expected voxels >= 0 (0: off), got {self.fast.explain_lead_voxels}")
+        if not 0.0 <= self.fast.thin_part_radius_voxels <= 1.0:
+            raise SettingsError("fast.thin_part_radius_voxels", f"expected a value in [0, 1] (voxels; 0: whole voxels), "
+                                                                f"got {self.fast.thin_part_radius_voxels}")
         if self.fast.trim_hull_voxels < 0:
             raise SettingsError("fast.trim_hull_voxels", f"expected an integer >= 0 (0: off), got {self.fast.trim_hull_voxels}")
         if not 0.0 <= self.fast.mesh_hull_inset_voxels <= 0.45:

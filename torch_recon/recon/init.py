@@ -27,7 +27,7 @@ from ..contract.errors import UnconstrainedMeasurementsError
 from .data import RayData
 from .fields import DensityGrid, GridBox
 from .sampler import ray_box
-from .thin_parts import thin_part_points
+from .thin_parts import thin_part_signed_distance, thin_part_voxels
 from .visible_surface_init import _dilate_cube, surface_offset, surface_signed_distance, visible_surface
 
 
@@ -138,24 +138,30 @@ NEAREST = 6
 
 
 def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count, origins, dirs, near, far, step,
-                    restorable=(3,), chunk_samples: int = 1 << 20, score=None) -> int:
+                    restorable=(3,), chunk_samples: int = 1 << 20, score=None, lead: float = 0.0) -> int:
     """Make every shadowed segment blocked (in place on the flat `label`): a shadowed segment whose voxels
     were all carved free gets back the carved voxel along it with the most shadowed and fewest free
     crossings (shadow / (lit + 1)). Carving through whole voxels takes thin parts
     (a chair leg about one voxel wide) with it wherever a lit ray grazes their voxel; the shadows the part
     casts cross it and put it back. `score` (flat, float): another ranking of the candidates (higher wins)
-    in place of that ratio. Returns the number of voxels restored."""
+    in place of that ratio. `lead` (m): candidates are also looked for this far before each segment's
+    `near` (nearer its surface point x), where only a carved voxel counts: a point on a part seen by the
+    sensor is shadowed by the part itself (its own voxel and the next), inside the offset the segments
+    skip next to x; without the lead the blocker lands on the first voxel past the offset, beside the
+    part. Returns the number of voxels restored."""
     if origins.shape[0] == 0:
         return 0
     if score is None:
         score = shadow_count.float() / (free_count.float() + 1.0)
     can = torch.zeros(8, dtype=torch.bool, device=label.device)
     can[list(restorable)] = True
+    lead = min(max(float(lead), 0.0), float(near.min()))
     picked = []
-    for _, flat, keep in _marching_cells(box, origins, dirs, near, far, step, chunk_samples):
+    for _, flat, keep in _marching_cells(box, origins, dirs, near - lead, far, step, chunk_samples):
         flat = flat.where(keep, 0.0).long()
         lab = label[flat]
-        blocked = (keep & (lab != 2) & (lab != 3)).any(1)
+        past = torch.arange(flat.shape[1], device=flat.device)[None] * step >= lead - 1e-6
+        blocked = (keep & past & (lab != 2) & (lab != 3)).any(1)
         cand = keep & can[lab.long()] & ~blocked[:, None]
         sc = torch.where(cand, score[flat], torch.full_like(flat, -1, dtype=score.dtype))
         best, j = sc.max(1)
@@ -198,7 +204,7 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
                   count_shadow: bool = False, carve_spacing_voxels: float = 1.0, explain_shadow_rays: bool = False,
                   explain_camera_free: bool = False, explain_score: str = "ratio", nearest_free: bool = False,
                   nearest_surface: bool = False, seen_free=None, thin_part_edges: bool = True,
-                  thin_part_centre: str = "off"):
+                  thin_part_centre: str = "off", explain_lead_voxels: float = 0.0):
     """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
     blocker of a shadowed segment (with `explain_shadow_rays`), 6 a part under a pixel wide (with
     `nearest_surface`: `thin_part_points`); and the count of shadowed secondary segments through each voxel
@@ -231,13 +237,10 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     idx, inside = box.cell_index(x_all[okx])
     flat = (idx[:, 0] * box.shape[1] + idx[:, 1]) * box.shape[2] + idx[:, 2]
     surface += torch.bincount(flat[inside], minlength=n)
-    nearest = torch.zeros(n, dtype=torch.long, device=dev)
+    nearest = torch.zeros(n, dtype=torch.bool, device=dev)
     if nearest_surface and data.nearest_depth is not None:
         # the nearest surface of a pixel whose strongest return lies behind it: a part thinner than the pixel
-        for pts in thin_part_points(data, box.voxel, edges=thin_part_edges, centre=thin_part_centre):
-            idx, inside = box.cell_index(pts)
-            flat = (idx[:, 0] * box.shape[1] + idx[:, 1]) * box.shape[2] + idx[:, 2]
-            nearest += torch.bincount(flat[inside], minlength=n)
+        nearest = thin_part_voxels(data, box, edges=thin_part_edges, centre=thin_part_centre).reshape(-1)
     # shadow carving: lit pairs on the carving pixels only; shadowed pairs count occluder evidence
     on_sub = torch.zeros(data.height * data.width, dtype=torch.bool, device=dev)
     on_sub[sub] = True
@@ -250,7 +253,7 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     label[lit_count >= max(1, carve_min_lit)] = 3
     label[cam_free > 0] = 2
     label[surface > 0] = 1
-    label[(nearest > 0) & (surface == 0)] = NEAREST
+    label[nearest & (surface == 0)] = NEAREST
     if consistent:
         seg = _segments(data, data.shadowed & on_sub[data.pair_pixel], off)
         score = None
@@ -258,11 +261,12 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
             sh = data.shadowed & on_sub[data.pair_pixel]
             score = (spot_crossings(data, box, sh, off, step).float()
                      / (spot_crossings(data, box, data.lit & on_sub[data.pair_pixel], off, step, carve_core) + 1.0))
+        lead = explain_lead_voxels * box.voxel
         if explain_camera_free:     # a part thinner than a pixel: the pixel ray saw past it
             explain_shadows(box, label, lit_count + cam_free, shadow_count, *seg, step, restorable=(2, 3),
-                            score=score)
+                            score=score, lead=lead)
         else:
-            explain_shadows(box, label, lit_count, shadow_count, *seg, step, score=score)
+            explain_shadows(box, label, lit_count, shadow_count, *seg, step, score=score, lead=lead)
     return label.reshape(box.shape), shadow_count.reshape(box.shape)
 
 
@@ -324,7 +328,8 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
                                         explain_camera_free=cfg.explain_camera_free, explain_score=cfg.explain_score,
                                         nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface,
                                         seen_free=seen_free, thin_part_edges=cfg.thin_part_edges,
-                                        thin_part_centre=cfg.thin_part_centre)
+                                        thin_part_centre=cfg.thin_part_centre,
+                                        explain_lead_voxels=cfg.explain_lead_voxels)
     free = (label == 2) | (label == 3)
     dev = data.pixel_dirs.device
     surface = visible_surface(data, box) if surface is None else surface
@@ -385,4 +390,10 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
         # a part under a pixel wide: its voxel's centre this far inside the surface (thinner than a whole voxel)
         raw = torch.where(label == NEAREST, ramp(torch.tensor(cfg.thin_part_half_width_voxels * box.voxel,
                                                               device=dev)), raw)
+    if cfg.thin_part_radius_voxels > 0 and cfg.nearest_surface and data.nearest_depth is not None:
+        # a tube round the thin parts' points (to a fraction of a voxel) in place of their whole voxels
+        tube = thin_part_signed_distance(data, box, cfg.thin_part_radius_voxels * box.voxel, cfg.thin_part_edges,
+                                         cfg.thin_part_centre).to(dev)
+        below = torch.where(label == NEAREST, torch.tensor(cfg.raw_free, device=dev), raw)
+        raw = torch.where(torch.isfinite(tube), torch.maximum(below, ramp(tube)), raw)
     return DensityGrid.from_xyz(box, raw.float(), cfg.density_scale), mesh_free

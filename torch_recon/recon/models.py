@@ -19,6 +19,7 @@ from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total
 from .renderer import render_field, render_pruned, secondary_rays
 from .sampler import importance_positions, merged_intervals, ray_box, uniform_intervals
 from .smoothness import NormalConsistencyPrior
+from .thin_parts import thin_part_signed_distance, thin_part_voxels
 from .visible_surface_init import (in_front_of_visible_surface, seen_free, seen_free_points, surface_offset,
                                    visible_surface)
 
@@ -72,6 +73,7 @@ class FastModel(ReconstructionModel):
         self._hook = None
         self._normal_cells = None
         self._set_measured_mask(self.grid.raw)
+        self._set_thin_parts(self.grid.box)
         self.occupancy = None
         self.refresh_occupancy()
         self.make_optimizer()
@@ -126,6 +128,32 @@ class FastModel(ReconstructionModel):
             free = self.free.permute(2, 1, 0)[None, None].to(raw.device)
             return ~(ramp | free)
 
+    def _set_thin_parts(self, box):
+        """`thin_parts`: the voxels (raw layout, bool) holding a thin part's point that `fast.thin_part_training`
+        keeps from eroding, or None ('free'). A part a voxel wide has no neighbour to prop it up: the camera and
+        lit rays passing it (they see past a part under a pixel wide) lower it below the surface in a few dozen
+        steps, and a pole or a leg breaks where one voxel of its column goes."""
+        self.thin_parts = None
+        if self.fc.thin_part_training != "free" and self.fc.nearest_surface and self.data.nearest_depth is not None:
+            fc = self.fc
+            if fc.thin_part_radius_voxels > 0:     # the tube's whole ramp: it holds the part's place
+                vox = torch.isfinite(thin_part_signed_distance(self.data, box, fc.thin_part_radius_voxels * box.voxel,
+                                                               fc.thin_part_edges, fc.thin_part_centre))
+            else:
+                vox = thin_part_voxels(self.data, box, edges=fc.thin_part_edges, centre=fc.thin_part_centre)
+            self.thin_parts = vox.permute(2, 1, 0)[None, None].to(self.device)
+
+    def _gradient_mask(self, g):
+        """The raw-density gradient the optimiser sees: zero on frozen measured voxels (`fast.freeze_measured`)
+        and on thin parts (`fast.thin_part_training`: all of it when 'frozen', the part pushing them down when
+        'grow'); Adam's step follows the sign of its masked gradient, so a zeroed direction never moves."""
+        if self.trainable is not None and self.fc.freeze_measured:
+            g = g * self.trainable.to(g.dtype)
+        if self.thin_parts is not None:
+            stop = self.thin_parts if self.fc.thin_part_training == "frozen" else self.thin_parts & (g > 0)
+            g = g.masked_fill(stop, 0.0)
+        return g
+
     def fixed_depth(self, px):
         """The visible depth of pixels `px` where the surface band is frozen (NaN where unknown)."""
         return self.data.visible_depth[px] if self.fc.freeze_measured else None
@@ -177,9 +205,8 @@ class FastModel(ReconstructionModel):
         if self._hook is not None:      # one gradient mask at a time, also when called again on the same grid
             self._hook.remove()
             self._hook = None
-        if self.trainable is not None and self.fc.freeze_measured:  # zero gradient: Adam never moves it
-            mask = self.trainable.to(self.grid.raw.dtype)
-            self._hook = self.grid.raw.register_hook(lambda g: g * mask)
+        if (self.trainable is not None and self.fc.freeze_measured) or self.thin_parts is not None:
+            self._hook = self.grid.raw.register_hook(self._gradient_mask)
 
     def refresh_occupancy(self):
         self._normal_prior = None       # the surface band moves with the field
@@ -209,6 +236,7 @@ class FastModel(ReconstructionModel):
             if self.trainable is not None:  # the mask of the fine level: from its own start field (built
                 start, self.free = self._initial(box=self.grid.box)     # once: free_evidence reuses `free`)
                 self._set_measured_mask(start.raw)
+            self._set_thin_parts(self.grid.box)
             self.refresh_occupancy()
             self.make_optimizer()
             return True
@@ -291,7 +319,7 @@ class FastModel(ReconstructionModel):
         return {"level": self.level, "raw": self.grid.raw.detach().clone(),
                 "bbox_min": self.grid.box.bbox_min.cpu(), "voxel": self.grid.box.voxel,
                 "shape": list(self.grid.box.shape), "free": self.free.clone(),
-                "trainable": self.trainable, "raw_start": self.raw_start, "occupancy": self.occupancy.clone(), "tau_step": self.tau_step.clone(), "optimizer": self.optimizer.state_dict(),
+                "trainable": self.trainable, "raw_start": self.raw_start, "thin_parts": self.thin_parts, "occupancy": self.occupancy.clone(), "tau_step": self.tau_step.clone(), "optimizer": self.optimizer.state_dict(),
                 "normal_cells": None if self._normal_prior is None else self._normal_prior.cells.clone()}
 
     def load_state_dict(self, st):
@@ -304,6 +332,8 @@ class FastModel(ReconstructionModel):
         self.trainable = None if t is None else t.to(self.device)
         r0 = st.get("raw_start")
         self.raw_start = None if r0 is None else r0.to(self.device)
+        tp = st.get("thin_parts")
+        self.thin_parts = None if tp is None else tp.to(self.device)
         self.occupancy = st["occupancy"].to(self.device)
         self._normal_prior = None       # rebuilt on the surface cells the run had (resume == uninterrupted)
         self._normal_cells = st.get("normal_cells")

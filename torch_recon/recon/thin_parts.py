@@ -82,3 +82,36 @@ def thin_part_points(data: RayData, voxel: float, samples: int = 4, edges: bool 
         same = (thin[a] | thin[b]) & torch.isfinite(r[a]) & torch.isfinite(r[b]) & ((r[a] - r[b]).abs() < voxel)
         pa, pb = x[a][same], x[b][same]
         yield (pa[:, None] + s[None, :, None] * (pb - pa)[:, None]).reshape(-1, 3)
+
+
+def _voxels_of(box, pts) -> torch.Tensor:
+    """Voxels (nx, ny, nz) bool of `box` holding at least one of the points (N, 3)."""
+    n = int(box.shape[0] * box.shape[1] * box.shape[2])
+    idx, inside = box.cell_index(pts)
+    flat = (idx[:, 0] * box.shape[1] + idx[:, 1]) * box.shape[2] + idx[:, 2]
+    return (torch.bincount(flat[inside], minlength=n) > 0).reshape(box.shape)
+
+
+def thin_part_voxels(data: RayData, box, edges: bool = True, centre: str = "off") -> torch.Tensor:
+    """Voxels (nx, ny, nz) bool of `box` holding a `thin_part_points` point: the start field occupies them
+    (`init.evidence_grid`, label NEAREST where no visible surface point lies) and `fast.thin_part_training`
+    keeps training from eroding them."""
+    return _voxels_of(box, torch.cat(list(thin_part_points(data, box.voxel, edges=edges, centre=centre))))
+
+
+def thin_part_signed_distance(data: RayData, box, radius: float, edges: bool = True, centre: str = "off"):
+    """(nx, ny, nz): `radius` minus the distance from each voxel centre to the nearest `thin_part_points` point,
+    on the thin parts' voxels and their 26 neighbours (NaN elsewhere): a tube of that radius round the points.
+    As a raw-density ramp it puts a part under a voxel wide where its points are, to a fraction of a voxel
+    (trilinear interpolation of a ramp in the distance); a whole occupied voxel puts it at the voxel's centre,
+    up to half a voxel beside the points, once they are centred on the part (`centre` 'mean')."""
+    from scipy.spatial import cKDTree
+
+    pts = torch.cat(list(thin_part_points(data, box.voxel, edges=edges, centre=centre)))
+    sd = torch.full(tuple(box.shape), float("nan"), device=pts.device)
+    if len(pts) == 0:
+        return sd
+    near = torch.nn.functional.max_pool3d(_voxels_of(box, pts).float()[None, None], 3, 1, 1)[0, 0] > 0
+    dist, _ = cKDTree(pts.cpu().double().numpy()).query(box.centres()[near].cpu().double().numpy())
+    sd[near] = radius - torch.as_tensor(dist, dtype=sd.dtype, device=sd.device)
+    return sd

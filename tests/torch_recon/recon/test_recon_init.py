@@ -91,3 +91,32 @@ def test_space_the_sensor_saw_through_beside_an_objects_edge_starts_empty():
     # never behind a measured surface: at most the ramp's value at the surface (before: 4.0, fully occupied)
     at_surface = surface_offset(cfg.density_scale, box.voxel, cfg.surface_slope)
     assert float(raw[seen_through].max()) <= at_surface + 1e-4
+
+
+def test_a_point_on_a_thin_part_is_shadowed_by_the_part_not_by_a_voxel_beside_it():
+    """A leg a voxel wide, carved by grazing lit rays; a point x on its near side is shadowed from a spot on
+    the far side: the leg itself blocks, within the offset the segment skips next to x. Without looking
+    there (`lead`) the blocker lands on the first voxel past the offset, beside the leg (a lump outside it)."""
+    box = GridBox([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], 10)
+    n = int(np.prod(box.shape))
+    leg = (5 * 10 + 5) * 10 + 5                            # voxel (5, 5, 5)
+    beside = (6 * 10 + 5) * 10 + 5                         # voxel (6, 5, 5), just outside the leg
+    x0, spot = [0.52, 0.55, 0.55], [0.98, 0.55, 0.55]      # x on the leg's near side; the spot along +x
+    off = 0.15                                             # 1.5 voxels skipped next to x (and the spot)
+    o, d, _, length = _segment(x0, spot)
+    seg = (o, d, torch.full((1,), off), length - off)
+    for lead, want in ((0.0, beside), (off, leg)):
+        label = torch.full((n,), 3, dtype=torch.int8)      # carved by lit rays, the leg's voxel (x's) too
+        lit, shadow = torch.full((n,), 10), torch.full((n,), 5)
+        lit[leg], shadow[leg] = 2, 30                      # the leg: grazed by few lit rays, crossed by many shadows
+        assert explain_shadows(box, label, lit, shadow, *seg, step=0.05, lead=lead) == 1
+        assert int(label[want]) == RESTORED, lead
+        assert int((label == RESTORED).sum()) == 1
+
+
+def test_explain_lead_refuses_a_negative_distance():
+    from torch_recon.contract.errors import SettingsError
+    from torch_recon.recon.config import FitConfig, override
+
+    with pytest.raises(SettingsError, match=r"fast\.explain_lead_voxels"):
+        override(FitConfig(), ["fast.explain_lead_voxels=-1"])
