@@ -125,7 +125,8 @@ def integrate_bins(src, dst, factor: int) -> Path:
             spots.append(replace(sp, transient_file=w.write_transient(sp.id, tr, man.layout.sample_type),
                                  content_hash=None))
         gt = man.ground_truth
-        for rel in filter(None, (gt.train_depth_file, gt.mesh_file, gt.test_views.depth_file if gt.test_views else None)):
+        for rel in filter(None, (gt.train_depth_file, gt.mesh_file, gt.test_views.depth_file if gt.test_views else None,
+                                 *(o.mesh_file for o in gt.objects))):     # the labelled objects' meshes too
             w.reuse_file(ds.path(rel), rel)
         layout = TransientLayout("dense" if g_new == t_new else "windowed", g_new, man.layout.sample_type)
         w.commit(replace(man, sensor=sensor, spots=spots, layout=layout))

@@ -26,6 +26,9 @@ RECON = ["python", "-m", "torch_recon"]
 #: the evaluate report's fields a benchmark row carries
 METRICS = ("depth_l1_m", "depth_psnr_db", "depth_l1_m_on_hits", "hit_fraction", "chamfer_m", "fscore",
            "n_test_views", "n_reconstruction_misses")
+#: the object-level numbers (torch_recon.evaluation.objects; issue 11's targets) a result carries, by object_fields
+OBJECT_FIELDS = ("n_test_views_invalid", "obj_f1cm", "obj_f2cm", "obj_f5cm", "hidden_recall_2cm", "visible_recall_2cm",
+                 "spurious", "objects_spurious", "normal_consistency", "degenerate_faces", "objects")
 
 
 class Refused(RuntimeError):
@@ -104,12 +107,28 @@ def combined(*timings: dict) -> dict:
             "peak_rss_mb": max(t["peak_rss_mb"] for t in timings)}
 
 
+def object_fields(report: dict) -> dict:
+    """OBJECT_FIELDS from an evaluate report (report.json): object F-score at 1 / 2 / 5 cm (mean over the
+    scene's objects), hidden / visible recall at 2 cm, spurious-surface fraction (whole mesh, objects'
+    region), normal consistency, degenerate faces, the objects' names (None where the dataset has no labels)."""
+    om = report.get("object_metrics") or {}
+    summ, scene = om.get("summary", {}), om.get("scene", {})
+    return {"n_test_views_invalid": report.get("n_test_views_invalid"),
+            "obj_f1cm": summ.get("fscore@1cm"), "obj_f2cm": summ.get("fscore@2cm"), "obj_f5cm": summ.get("fscore@5cm"),
+            "hidden_recall_2cm": summ.get("recall_hidden@2cm"), "visible_recall_2cm": summ.get("recall_visible@2cm"),
+            "spurious": scene.get("spurious_fraction"), "objects_spurious": scene.get("objects_spurious_fraction"),
+            "normal_consistency": scene.get("normal_consistency"), "degenerate_faces": scene.get("degenerate_faces"),
+            "objects": ",".join(om.get("objects", {})) or None}
+
+
 def evaluate(ctx, mesh, dataset, out, timeout=None, args=()) -> dict:
-    """`torch_recon evaluate MESH --dataset DATASET --out OUT`: the report's metrics and evaluate_* times."""
+    """`torch_recon evaluate MESH --dataset DATASET --out OUT`: the report's metrics, its object-level
+    numbers (object_fields) and evaluate_* times."""
     out = _fresh(ctx.work_dir / out)
     run = _run(ctx, [*RECON, "evaluate", mesh, "--dataset", dataset, "--out", out, *args], timeout)
     report = json.loads((out / "report.json").read_text())
-    return {**{k: report.get(k) for k in METRICS}, "evaluate_wall_s": run.wall_s, "evaluate_cpu_s": run.cpu_s}
+    return {**{k: report.get(k) for k in METRICS}, **object_fields(report), "evaluate_wall_s": run.wall_s,
+            "evaluate_cpu_s": run.cpu_s}
 
 
 def fit(ctx, source, out, dataset=None, mode="fast", steps=None, max_seconds=None, sets=(), seed=0,

@@ -12,7 +12,6 @@ recall@2cm >= 0.85, spurious <= 0.02, no degenerate faces.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 
 from benchmarks.harness import Suite, runners
@@ -32,22 +31,7 @@ class Settings:
     timeout_s: float = 1800.0
 
 
-def _object_fields(ctx, eval_dir: str) -> dict:
-    """The object-level numbers from the evaluation's report.json."""
-    rep = json.loads((ctx.work_dir / eval_dir / "report.json").read_text())
-    om = rep.get("object_metrics", {})
-    summ, scene = om.get("summary", {}), om.get("scene", {})
-    return {"n_test_views_invalid": rep.get("n_test_views_invalid"),
-            "obj_f1cm": summ.get("fscore@1cm"), "obj_f2cm": summ.get("fscore@2cm"), "obj_f5cm": summ.get("fscore@5cm"),
-            "hidden_recall_2cm": summ.get("recall_hidden@2cm"), "visible_recall_2cm": summ.get("recall_visible@2cm"),
-            "spurious": scene.get("spurious_fraction"), "objects_spurious": scene.get("objects_spurious_fraction"),
-            "normal_consistency": scene.get("normal_consistency"), "degenerate_faces": scene.get("degenerate_faces"),
-            "objects": ",".join(om.get("objects", {}))}
-
-
 FIELDS = ("depth_l1_m", "depth_psnr_db", "n_test_views")
-
-
 
 
 def run(s: Settings, ctx) -> list:
@@ -60,15 +44,12 @@ def run(s: Settings, ctx) -> list:
             try:
                 if method == "bflidar":
                     res = runners.baseline(ctx, ds, out, timeout=s.timeout_s)
-                    eval_dir = f"{out}-eval"
                 elif method == "platonerf":
                     note = f"short budget: {s.platonerf_max_seconds:g} s of training (the paper trains for hours)"
                     res = runners.fit(ctx, ds, out, mode="platonerf", max_seconds=s.platonerf_max_seconds,
                                       timeout=s.timeout_s)
-                    eval_dir = f"{out}-eval"
                 else:
                     res = runners.fit(ctx, ds, out, mode=method, timeout=s.timeout_s)
-                    eval_dir = f"{out}-eval"
             except runners.Refused as exc:      # also NoSurface: a short platonerf budget may leave the field empty
                 rows.append(runners.refused_row(method, scene, exc, note=note, steps=exc.times.get("steps"),
                                                 load_1min=ctx.load_1min()))
@@ -76,7 +57,8 @@ def run(s: Settings, ctx) -> list:
                 continue
             rows.append({"method": method, "scene": scene, **{k: res.get(k) for k in TIMES},
                          "steps": res.get("steps"), "stopped": res.get("stopped"), "train_s": res.get("train_s"),
-                         "load_1min": ctx.load_1min(), **{k: res.get(k) for k in FIELDS}, **_object_fields(ctx, eval_dir),
+                         "load_1min": ctx.load_1min(), **{k: res.get(k) for k in FIELDS},
+                         **{k: res.get(k) for k in runners.OBJECT_FIELDS},
                          "note": note})
             r = ctx.keep(rows[-1])
             ctx.log(f"  {scene} {method}: L1 {fmt(r['depth_l1_m'])} m, F@2cm {fmt(r['obj_f2cm'])}, "

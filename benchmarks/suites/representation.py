@@ -20,7 +20,6 @@ from dataclasses import dataclass
 
 from benchmarks.harness import Suite, runners
 from benchmarks.harness.report import fmt, markdown_table
-from benchmarks.suites.objects import _object_fields
 from torch_recon.contract.scenes import OBJECT_SCENES
 
 
@@ -116,7 +115,7 @@ def _fields(ctx, eval_dir: str) -> dict:
     """The objects suite's fields plus precision at 2 cm."""
     rep = json.loads((ctx.work_dir / eval_dir / "report.json").read_text())
     summ = rep.get("object_metrics", {}).get("summary", {})
-    return {**_object_fields(ctx, eval_dir), "precision_2cm": summ.get("precision@2cm")}
+    return {**runners.object_fields(rep), "precision_2cm": summ.get("precision@2cm")}
 
 
 def _log(ctx, r):

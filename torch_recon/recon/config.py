@@ -61,9 +61,12 @@ class FastConfig:
     surface_slope: float = 4.0        # raw-density ramp per voxel across visible surfaces at init (0: binary);
                                       # 16 left the raw field binary at voxel centres (terraced meshes)
     surface_half_width_voxels: float = 2.0  # the signed-distance ramp spans +- this around visible surfaces
-    surface_concave_corners: bool = False  # True: a voxel behind either surface of a concave corner (floor meeting
-                                      # a wall) is behind, not the nearest plane's side (curved-wall: junction
-                                      # misses 3952 -> 3032, but chair F@2cm 0.818 -> 0.802; session 9)
+    surface_concave_corners: str = "planes"  # a voxel behind either surface of a concave corner (floor meeting a
+                                      # wall) is behind, not the nearest plane's side: 'planes' where the other
+                                      # surface lies on a plane bounding the room (unobserved.bounding_planes;
+                                      # the white streak at cave-chair's wall foot gone, object metrics within
+                                      # 0.001 on six scenes, session 10), 'all' any surface (chair F@2cm 0.818 ->
+                                      # 0.802: the chair's own seat/back corner; session 9), 'off'
     carve_seen_free_beyond_voxels: float = 1.5  # pixel rays farther apart than this (voxels, at the far surfaces):
                                       # camera carving also empties the voxels between them that the pixels'
                                       # footprints saw through (visible_surface_init.seen_free_points). 64 px on the
@@ -172,6 +175,10 @@ class FastConfig:
     mesh_seen_free: bool = True       # ... and faces facing a point the sensor's pixel footprints saw through
                                       # (between pixel rays; visible_surface_init.seen_free_points): curved-wall
                                       # and 64 px sensors' pin-holes (docs/reconstruction.md, session 9)
+    seen_free_corners: bool = True    # ... where the four pixels' points meet in a concave corner, the surface
+                                      # between them is the nearest of their tangent planes along the ray (the
+                                      # corner itself), not the chord that cuts it (mesh test and 64 px carving;
+                                      # cave-chair 64 px misses 16352 -> 14806, session 10)
 
 
 @dataclass
@@ -239,6 +246,9 @@ class FitConfig:
         if self.fast.thin_part_centre not in ("off", "depth", "mean", "seen"):
             raise SettingsError("fast.thin_part_centre", f"expected 'off', 'depth', 'mean' or 'seen', got "
                                                           f"{self.fast.thin_part_centre!r}")
+        if self.fast.surface_concave_corners not in ("off", "planes", "all"):
+            raise SettingsError("fast.surface_concave_corners", f"expected 'off', 'planes' or 'all', got "
+                                                                f"{self.fast.surface_concave_corners!r}")
         if self.fast.thin_part_training not in ("free", "frozen", "grow"):
             raise SettingsError("fast.thin_part_training", f"expected 'free', 'frozen' or 'grow', got "
                                                             f"{self.fast.thin_part_training!r}")

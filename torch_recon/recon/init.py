@@ -320,7 +320,7 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     surface: `visible_surface(data, box)` (points, normals) when already computed.
     """
     from .beyond_view import lit_side_of_hull, out_of_view_spots, unneeded_beside_view
-    from .unobserved import bounding_planes, shell_signed_distance
+    from .unobserved import bounding_planes, on_planes, shell_signed_distance
 
     label, shadow_count = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m,
                                         cfg.step_voxels, cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
@@ -333,13 +333,18 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     free = (label == 2) | (label == 3)
     dev = data.pixel_dirs.device
     surface = visible_surface(data, box) if surface is None else surface
+    planes = (bounding_planes(*surface, data.sensor_origin.cpu().numpy(), data.spot_points.cpu().numpy(),
+                              cfg.plane_tolerance_voxels * box.voxel, cfg.plane_min_support)
+              if (cfg.complete_unobserved and view is not None) or cfg.trim_hull_voxels > 0
+              or cfg.surface_concave_corners == "planes" else [])
+    corners = cfg.surface_concave_corners
     sd = (surface_signed_distance(data, box, cfg.surface_half_width_voxels, surface=surface,
-                                  concave_corners=cfg.surface_concave_corners).to(dev)
+                                  concave_corners=corners != "off",
+                                  corner_points=(on_planes(*surface, planes, cfg.plane_tolerance_voxels * box.voxel)
+                                                 if corners == "planes" else None)).to(dev)
           if cfg.surface_slope > 0 else None)
     shell = None
     if (cfg.complete_unobserved and view is not None) or cfg.trim_hull_voxels > 0:
-        planes = bounding_planes(*surface, data.sensor_origin.cpu().numpy(), data.spot_points.cpu().numpy(),
-                                 cfg.plane_tolerance_voxels * box.voxel, cfg.plane_min_support)
         shell = shell_signed_distance(box.centres().double(), planes).float().to(dev)
     trimmed = None
     if cfg.trim_hull_voxels > 0:

@@ -87,7 +87,7 @@ class FastModel(ReconstructionModel):
             # a coarse sensor: camera carving between the pixel rays too
             m = self.meta
             seen = seen_free(self.data, box, m["camera_to_world"], m["fov_rad"], m["fov_axis"],
-                             self.fc.surface_margin_voxels, self._seen_depth())
+                             self.fc.surface_margin_voxels, self._seen_depth(), self.fc.seen_free_corners)
         return initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box),
                             self.visible_surface(box), seen_free=seen)
 
@@ -187,7 +187,7 @@ class FastModel(ReconstructionModel):
             return None
         m = self.meta
         return seen_free_points(self.data, m["camera_to_world"], m["fov_rad"], m["fov_axis"], self.grid.box.voxel,
-                                self._seen_depth())
+                                self._seen_depth(), corner_planes=self.fc.seen_free_corners)
 
     def offset_for(self, voxel):
         return max(self.cfg.loss.secondary_offset_m, self.fc.secondary_offset_voxels * voxel)

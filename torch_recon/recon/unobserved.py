@@ -101,6 +101,16 @@ def bounding_planes(points, normals, sensor, spots, tolerance_m: float, min_supp
     return planes
 
 
+def on_planes(points, normals, planes: list[Plane], tolerance_m: float) -> np.ndarray:
+    """bool (N,): the point lies within `tolerance_m` of one of `planes` with its normal within 20 degrees of
+    the plane's (the RANSAC inlier test of `bounding_planes`)."""
+    pts, nrm = np.asarray(points, np.float64).reshape(-1, 3), np.asarray(normals, np.float64).reshape(-1, 3)
+    out = np.zeros(len(pts), bool)
+    for p in planes:
+        out |= (np.abs(p.signed_distance(pts)) <= tolerance_m) & (np.abs(nrm @ p.normal) >= _PlaneModel.max_angle_cos)
+    return out
+
+
 def shell_signed_distance(centres: torch.Tensor, planes: list[Plane]) -> torch.Tensor:
     """Signed distance (m, + behind / inside solid) of points (..., 3) to the convex shell in front of
     every plane: max over planes of the distance behind it (exact inside the shell, a bound outside)."""

@@ -79,14 +79,16 @@ def _dilate_cube(x: torch.Tensor, r: int) -> torch.Tensor:
 
 
 def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: float = 2.0, k: int = 4,
-                            surface=None, concave_corners: bool = False):
+                            surface=None, concave_corners: bool = False, corner_points: np.ndarray | None = None):
     """Point-to-plane signed distance (m, + behind the surface) of voxel centres within `half_width_voxels`
     of the visible surface (NaN elsewhere): the mean over the k nearest measured points of their tangent
     planes, leaving out planes that disagree with the nearest by more than a voxel (another surface).
     Planar walls give an exactly linear field, so the iso-surface is flat (no grid-aligned steps).
-    concave_corners: where another surface among the 2 k nearest points meets the nearest one's in a
-    concave corner (its point lies in front of the nearest plane) and the voxel lies behind it, the voxel
-    is behind (the larger distance).
+    concave_corners: where another surface meets the nearest point's in a concave corner and the voxel lies
+    behind it, the voxel is behind (the larger distance; `_behind_concave_corner`).
+    corner_points: bool (N,) over the surface points: only these can be that other surface (the room's
+    bounding planes, `unobserved.on_planes`: an object's own concave corners, a seat meeting its back,
+    keep the nearest plane; default every point).
     surface: (points, normals) from `visible_surface` when already computed."""
     from scipy.spatial import cKDTree
 
@@ -105,28 +107,47 @@ def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: floa
     cand = torch.nonzero(occ, as_tuple=False).numpy()
     centres = lo + (cand + 0.5) * box.voxel
     tree = cKDTree(pts)
-    kq = min(2 * k if concave_corners else k, len(pts))
+    kq = min(k, len(pts))
     dist, j = tree.query(centres, k=kq, distance_upper_bound=(half_width_voxels + 1.0) * box.voxel)
     dist, j = dist.reshape(len(cand), kq), j.reshape(len(cand), kq)
     found = np.isfinite(dist)
     jj = np.where(found, j, 0)
     plane = ((pts[jj] - centres[:, None]) * nrm[jj]).sum(-1)          # + behind the surface
     agree = found & (np.abs(plane - plane[:, :1]) <= box.voxel)
-    agree[:, k:] = False
     wgt = agree * np.exp(-(np.where(found, dist, 0.0) / box.voxel) ** 2)
     val = (wgt * plane).sum(1) / np.maximum(wgt.sum(1), 1e-12)
     if concave_corners:
-        # a concave corner (the other surface's point lies in front of the nearest one's plane, e.g. a floor
-        # meeting a wall): the solid is behind either surface; the nearest plane alone emptied the voxels
-        # behind the other surface next to the corner (rows of pin-holes along the junction)
-        other = found & ~agree
-        other[:, 0] = False
-        concave = ((pts[jj] - pts[jj[:, :1]]) * nrm[jj[:, :1]]).sum(-1) > 0.5 * box.voxel
-        behind_other = np.where(other & concave & (plane > 0), plane, -np.inf).max(1)
-        val = np.maximum(val, behind_other)
+        val = np.maximum(val, _behind_concave_corner(pts, nrm, centres, dist[:, 0], jj[:, 0],
+                                                     box.voxel, 2 * k, (half_width_voxels + 1.0) * box.voxel,
+                                                     corner_points))
     keep = found[:, 0] & (np.abs(val) <= half_width_voxels * box.voxel)
     sd[tuple(cand[keep].T)] = val[keep]
     return torch.from_numpy(sd)
+
+
+def _behind_concave_corner(pts, nrm, centres, d0, j0, voxel, k, reach_m, corner_points=None):
+    """How far (m) each centre lies behind another surface that meets its nearest point's (index j0, at
+    distance d0) in a concave corner: its point lies in front of the nearest one's
+    plane (a floor meeting a wall); -inf where none. The solid is behind either surface: the nearest plane
+    alone emptied the voxels behind the other surface next to the corner (rows of pin-holes along the
+    junction). The other surface's points are looked for among the k nearest of `corner_points` (default
+    all) within `reach_m`, or twice the nearest point's distance plus a voxel where the points lie sparser
+    (a coarse sensor: the corner's voxels lie several voxels from the nearest row of each surface)."""
+    from scipy.spatial import cKDTree
+
+    out = np.full(len(centres), -np.inf)
+    cidx = np.arange(len(pts)) if corner_points is None else np.flatnonzero(corner_points)
+    if len(cidx) == 0 or len(centres) == 0:
+        return out
+    kc = min(k, len(cidx))
+    reach = np.maximum(reach_m, 2.0 * np.where(np.isfinite(d0), d0, 0.0) + voxel)
+    dist, j = cKDTree(pts[cidx]).query(centres, k=kc, distance_upper_bound=float(reach.max()))
+    dist, j = dist.reshape(len(centres), kc), j.reshape(len(centres), kc)
+    found = np.isfinite(dist) & (dist <= reach[:, None]) & np.isfinite(d0)[:, None]
+    q = cidx[np.where(found, j, 0)]
+    plane = ((pts[q] - centres[:, None]) * nrm[q]).sum(-1)                 # + behind that surface
+    concave = ((pts[q] - pts[j0][:, None]) * nrm[j0][:, None]).sum(-1) > 0.5 * voxel
+    return np.where(found & concave & (plane > 0), plane, -np.inf).max(1)
 
 
 def surface_offset(density_scale: float, voxel: float, slope: float) -> float:
@@ -163,21 +184,26 @@ def in_front_of_visible_surface(surface, box: GridBox, empty: torch.Tensor,
 
 
 def seen_free(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_axis: str,
-              margin_voxels: float = 0.5, depth: torch.Tensor | None = None) -> torch.Tensor:
+              margin_voxels: float = 0.5, depth: torch.Tensor | None = None, corner_planes: bool = False) -> torch.Tensor:
     """Voxels (nx, ny, nz) bool whose centre the sensor saw through (`seen_free_points`)."""
     pts = box.centres().reshape(-1, 3).cpu().numpy().astype(np.float64)
-    free = seen_free_points(data, camera_to_world, fov_rad, fov_axis, box.voxel, depth)(pts, margin_voxels * box.voxel)
+    free = seen_free_points(data, camera_to_world, fov_rad, fov_axis, box.voxel, depth,
+                            corner_planes)(pts, margin_voxels * box.voxel)
     return torch.from_numpy(free.reshape(box.shape))
 
 
 def seen_free_points(data: RayData, camera_to_world, fov_rad: float, fov_axis: str, voxel: float,
-                     depth: torch.Tensor | None = None):
+                     depth: torch.Tensor | None = None, corner_planes: bool = False):
     """A test `free(points (N, 3), margin_m) -> bool (N,)`: the sensor saw through the point, i.e. it projects
     into the image and lies more than `margin_m` (along its ray) in front of the visible surface between
     the four nearest pixels' points. That surface is the bilinear one in inverse depth (exact for a plane)
     where no point lies more than half a voxel behind another's tangent plane (one plane, or a concave
     corner: the chord lies in front of both walls), else the nearest point's depth (an occluding or convex
-    edge: what lies between the pixel rays behind the nearer surface is unknown).
+    edge: what lies between the pixel rays behind the nearer surface is unknown). corner_planes: in the
+    first case the surface is the farther of that and the nearest of the four points' tangent planes along
+    the point's ray (a concave corner: the ray stays in the room until it meets either wall; the chord cut
+    the corner, and a coarse sensor's corner faces lay behind it), at most the points' depth spread
+    beyond the deepest point.
 
     A camera ray's march carves only the voxels it crosses, a line through the grid: where pixel rays lie
     more than a voxel apart (a coarse sensor; far or grazing surfaces) the voxels between them stay
@@ -208,6 +234,11 @@ def seen_free_points(data: RayData, camera_to_world, fov_rad: float, fov_axis: s
             behind = ((x[b] - x[a]) * nrm[a]).sum(-1)                       # NaN normal: not one surface
             one_surface &= np.nan_to_num(behind, nan=-np.inf) >= -0.5 * voxel
     nearest = np.where(np.isfinite(cz), cz, np.inf).min(0)
+    if corner_planes:
+        cx = np.stack([x[a] for a in corner])                               # (4, h + 1, w + 1, 3)
+        cn = np.stack([nrm[a] for a in corner])
+        deepest = np.where(np.isfinite(cz), cz, -np.inf).max(0)
+        reach = deepest + (deepest - nearest) + voxel                        # how far behind the points a corner may lie
 
     def free(points, margin_m: float):
         pts = np.asarray(points, np.float64).reshape(-1, 3)
@@ -219,7 +250,18 @@ def seen_free_points(data: RayData, camera_to_world, fov_rad: float, fov_axis: s
         weights = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv])
         with np.errstate(divide="ignore", invalid="ignore"):
             inv = (weights / cz[:, cj, ci]).sum(0)
-            est = np.where(one_surface[cj, ci], 1.0 / inv, nearest[cj, ci])    # camera-space depth of the surface
+            est = 1.0 / inv
+            if corner_planes:
+                # the nearest of the four tangent planes along the ray: the corner itself where two walls meet
+                # (the chord cuts it), the plane where there is one
+                u = (pts[ok] - c) / np.linalg.norm(pts[ok] - c, axis=1, keepdims=True)
+                nq = cn[:, cj, ci]                                          # (4, M, 3)
+                den = (nq * u).sum(-1)
+                r_plane = ((cx[:, cj, ci] - c) * nq).sum(-1) / den
+                r_plane = np.where(np.isfinite(r_plane) & (den < -0.1) & (r_plane > 0), r_plane, np.inf).min(0)
+                z_plane = np.minimum(r_plane * z[ok] / np.linalg.norm(pts[ok] - c, axis=1), reach[cj, ci])
+                est = np.where(np.isfinite(z_plane) & (z_plane > est), z_plane, est)
+            est = np.where(one_surface[cj, ci], est, nearest[cj, ci])    # camera-space depth of the surface
         est = np.where(np.isfinite(est), est, -np.inf)                          # no measured depth: not seen free
         r = np.linalg.norm(pts[ok] - c, axis=1)
         out = np.zeros(len(pts), bool)

@@ -214,5 +214,5 @@ def test_a_coarse_sensor_carves_between_its_pixel_rays():
     from torch_recon.recon.visible_surface_init import seen_free
 
     seen_through = seen_free(data, box, meta["camera_to_world"], meta["fov_rad"], meta["fov_axis"],
-                             cfg.fast.surface_margin_voxels, data.visible_depth)
+                             cfg.fast.surface_margin_voxels, data.visible_depth, cfg.fast.seen_free_corners)
     assert bool(seen_through[added].all())
