@@ -130,22 +130,24 @@ class FastConfig:
                                       # -> 0.885, curved-wall 0.864 -> 0.890, outside-fov 0.610 -> 0.620, the
                                       # other three within 0.002 (legs and pole whole). With centre 'mean' too:
                                       # cave-chair 0.917 but thin-structures 0.804 -> 0.784 (pole breaks)
-    thin_part_centre: str = "off"     # ... a thin part's point: 'depth' a quarter pixel footprint behind the
+    thin_part_centre: str = "mean"    # ... a thin part's point: 'depth' a quarter pixel footprint behind the
                                       # earliest return (its middle); 'mean' also the mean of its 3 x 3
                                       # neighbours' at the same range; 'seen' only of those seen strongest
-                                      # there; 'off' the earliest return
+                                      # there; 'off' the earliest return. 'mean' with training 'frozen' is the
+                                      # default since session 10 (six scenes in docs/reconstruction.md)
     thin_part_raw: float = 4.0        # raw density those voxels start at (raw_occupied: 4; higher: the training
                                       # steps of the pixels that see past the part cannot empty it in 100 steps)
     thin_part_radius_voxels: float = 0.0  # > 0: a thin part starts as a tube this many voxels in radius round its points
                                       # (a ramp in the distance to them, `thin_part_signed_distance`: placed to a
                                       # fraction of a voxel); 0: its voxels whole (the part at their centres).
                                       # 0.4 with 'mean' + 'frozen': thin-structures 0.784 / 0.820 (no gain)
-    thin_part_training: str = "free"  # what training may do to the voxels holding a thin part's point
+    thin_part_training: str = "frozen"  # what training may do to the voxels holding a thin part's point
                                       # (recon/thin_parts.py thin_part_voxels): 'free' as every voxel; 'frozen'
                                       # keep their start value (gradient masked); 'grow' only raise it (the pixels
                                       # seeing past a one-voxel part cannot erode it). With centre 'mean' (session 10):
                                       # thin-structures 0.784 / 0.803 -> 0.788 / 0.832 F@2cm / hidden R (table leg
-                                      # kept), cave-chair 0.917 / 0.894, curved-wall 0.920 / 0.928; lamp pole still thin
+                                      # kept), cave-chair 0.917 / 0.894, curved-wall 0.920 / 0.928; lamp pole still thin.
+                                      # 'frozen' is the default with centre 'mean' (session 10)
     thin_part_half_width_voxels: float = 0.0  # > 0: those voxels start this far inside the surface (a part thinner
                                       # than a voxel); 0: fully occupied. thin-structures 0.3: start better,
                                       # trained worse (F@2cm table 0.792 -> 0.775; training erodes it)
