@@ -117,9 +117,11 @@ def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: floa
     wgt = agree * np.exp(-(np.where(found, dist, 0.0) / box.voxel) ** 2)
     val = (wgt * plane).sum(1) / np.maximum(wgt.sum(1), 1e-12)
     if concave_corners:
-        val = np.maximum(val, _behind_concave_corner(pts, nrm, centres, dist[:, 0], jj[:, 0],
-                                                     box.voxel, 2 * k, (half_width_voxels + 1.0) * box.voxel,
-                                                     corner_points))
+        # only where the voxel could still be kept: the corner rule only raises the value (half the candidates)
+        may = found[:, 0] & (val <= half_width_voxels * box.voxel)
+        val[may] = np.maximum(val[may], _behind_concave_corner(pts, nrm, centres[may], dist[may, 0], jj[may, 0],
+                                                               box.voxel, 2 * k, (half_width_voxels + 1.0) * box.voxel,
+                                                               corner_points))
     keep = found[:, 0] & (np.abs(val) <= half_width_voxels * box.voxel)
     sd[tuple(cand[keep].T)] = val[keep]
     return torch.from_numpy(sd)
