@@ -187,8 +187,7 @@ def far_pixel_spacing(data: RayData) -> float | None:
     d = data.visible_depth[torch.isfinite(data.visible_depth)]
     if d.numel() == 0:
         return None
-    dirs = data.pixel_dirs.reshape(data.height, data.width, 3)
-    ang = float(torch.arccos((dirs[0, 0] * dirs[0, 1]).sum().clamp(-1, 1))) if data.width > 1 else 1.0
+    ang = data.pixel_angle() or 1.0
     return max(ang * float(torch.quantile(d, 0.95)), 1e-6)
 
 

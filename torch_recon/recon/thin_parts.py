@@ -23,14 +23,6 @@ def _shifted(t, dy, dx, fill):
 _AROUND = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
 
 
-def _pixel_angle(data: RayData) -> float:
-    """Angle between neighbouring pixel rays (radians): a pixel's footprint is this x range."""
-    dirs = data.pixel_dirs.reshape(data.height, data.width, 3)
-    if data.width < 2:
-        return 0.0
-    return float(torch.arccos((dirs[0, data.width // 2 - 1] * dirs[0, data.width // 2]).sum().clamp(-1, 1)))
-
-
 def thin_part_points(data: RayData, voxel: float, samples: int = 4, edges: bool = True, centre: str = "off"):
     """World points of parts thinner than a pixel, chunk by chunk: the nearest surface of each pixel whose
     strongest return lies more than `voxel` behind it (`nearest_depth`), and the segments joining it to the
@@ -59,7 +51,7 @@ def thin_part_points(data: RayData, voxel: float, samples: int = 4, edges: bool 
         beside = torch.stack([((_shifted(dn, dy, dx, inf) - r).abs() < voxel) & _shifted(broad, dy, dx, False)
                               for dy, dx in _AROUND]).any(0)
         thin &= ~beside
-    back = 0.25 * _pixel_angle(data) * r if centre != "off" else torch.zeros_like(r)
+    back = 0.25 * (data.pixel_angle(at_centre=True) or 0.0) * r if centre != "off" else torch.zeros_like(r)
     x = data.sensor_origin + data.pixel_dirs.reshape(h, w, 3) * (r + back)[..., None]
     if centre in ("mean", "seen"):
         rn = torch.nan_to_num(r, nan=inf)
