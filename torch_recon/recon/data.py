@@ -64,22 +64,24 @@ class RayData:
 
     _lit: torch.Tensor | None = None
 
-    def pixel_angle(self, at_centre: bool = False) -> float | None:
-        """Angle (radians, float64) between neighbouring pixel rays along a row: a pixel's footprint at range r
-        is this x r. At the image's corner (default: the smallest, where the far surfaces' rays lie closest) or
-        at its centre; None for an image one pixel wide."""
-        if self.width < 2:
-            return None
-        dirs = self.pixel_dirs.detach().reshape(self.height, self.width, 3).cpu().double()
-        j = self.width // 2 if at_centre else 1
-        return float(torch.arccos((dirs[0, j - 1] * dirs[0, j]).sum().clamp(-1, 1)))
-
     def scene_points(self) -> np.ndarray:
         """Observed surface points (visible depth) and the spots: the extent of what was measured."""
         d = self.visible_depth.cpu().numpy()
         ok = np.isfinite(d)
         x = self.sensor_origin.cpu().numpy() + self.pixel_dirs.cpu().numpy()[ok] * d[ok, None]
         return np.concatenate([x, self.spot_points.cpu().numpy()], 0)
+
+
+def pixel_angle(data, at_centre: bool = False) -> float | None:
+    """Angle (radians, float64) between neighbouring pixel rays along a row of `data` (RayData, or anything
+    with `pixel_dirs`, `height`, `width`): a pixel's footprint at range r is this x r. At the image's corner
+    (default: the smallest, where the far surfaces' rays lie closest) or at its centre; None for an image one
+    pixel wide."""
+    if data.width < 2:
+        return None
+    dirs = data.pixel_dirs.detach().reshape(data.height, data.width, 3).cpu().double()
+    j = data.width // 2 if at_centre else 1
+    return float(torch.arccos((dirs[0, j - 1] * dirs[0, j]).sum().clamp(-1, 1)))
 
 
 def build_ray_data(meas: Measurements) -> RayData:

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from ..contract.errors import UnconstrainedMeasurementsError
-from .data import RayData
+from .data import RayData, pixel_angle
 from .fields import DensityGrid, GridBox
 from .sampler import ray_box
 from .thin_parts import thin_part_signed_distance, thin_part_voxels
@@ -187,7 +187,7 @@ def far_pixel_spacing(data: RayData) -> float | None:
     d = data.visible_depth[torch.isfinite(data.visible_depth)]
     if d.numel() == 0:
         return None
-    ang = data.pixel_angle() or 1.0
+    ang = pixel_angle(data) or 1.0
     return max(ang * float(torch.quantile(d, 0.95)), 1e-6)
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import torch
 
-from .data import RayData
+from .data import RayData, pixel_angle
 
 
 def _shifted(t, dy, dx, fill):
@@ -51,7 +51,7 @@ def thin_part_points(data: RayData, voxel: float, samples: int = 4, edges: bool 
         beside = torch.stack([((_shifted(dn, dy, dx, inf) - r).abs() < voxel) & _shifted(broad, dy, dx, False)
                               for dy, dx in _AROUND]).any(0)
         thin &= ~beside
-    back = 0.25 * (data.pixel_angle(at_centre=True) or 0.0) * r if centre != "off" else torch.zeros_like(r)
+    back = 0.25 * (pixel_angle(data, at_centre=True) or 0.0) * r if centre != "off" else torch.zeros_like(r)
     x = data.sensor_origin + data.pixel_dirs.reshape(h, w, 3) * (r + back)[..., None]
     if centre in ("mean", "seen"):
         rn = torch.nan_to_num(r, nan=inf)

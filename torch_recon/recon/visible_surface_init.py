@@ -9,7 +9,7 @@ import math
 import numpy as np
 import torch
 
-from .data import RayData
+from .data import RayData, pixel_angle
 from .fields import GridBox
 
 
@@ -62,7 +62,7 @@ def visible_surface(data: RayData, box: GridBox):
     dirs = data.pixel_dirs.cpu().numpy().reshape(h, w, 3).astype(np.float64)
     valid = np.isfinite(d)
     x = c + dirs * np.where(valid, d, 0.0)[..., None]
-    pix_angle = data.pixel_angle() or 1e-3
+    pix_angle = pixel_angle(data) or 1e-3
     # steps up to 8 pixel footprints (a surface at 7 degrees grazing); the plane support test picks the side
     max_jump = 8.0 * pix_angle * np.where(valid, d, 0.0) + box.voxel
     normals = _depth_normals(x, valid, c, max_jump, tol=0.25 * box.voxel)
@@ -220,7 +220,7 @@ def seen_free_points(data: RayData, camera_to_world, fov_rad: float, fov_axis: s
     dirs = data.pixel_dirs.detach().cpu().numpy().reshape(h, w, 3).astype(np.float64)
     valid = np.isfinite(rng) & (rng > 0)
     x = c + dirs * np.where(valid, rng, 0.0)[..., None]
-    pix_angle = data.pixel_angle() or 1e-3
+    pix_angle = pixel_angle(data) or 1e-3
     nrm = _depth_normals(x, valid, c, 8.0 * pix_angle * np.where(valid, rng, 0.0) + voxel, 0.25 * voxel)
     zdepth = np.where(valid, rng * (dirs @ -np.asarray(camera_to_world, np.float64)[:3, 2]), np.nan)
     # cells between pixel centres (j, i) .. (j + 1, i + 1), edge pixels repeated: (h + 1, w + 1) cells
