@@ -105,7 +105,8 @@ def load_fit_volume(fit_dir):
     try:
         with np.load(vol_path) as z:
             opacity, lo, hi, level = z["opacity"], z["bbox_min"], z["bbox_max"], float(z["level"])
-        settings = json.loads(rep_path.read_text())["settings"]
+        report = json.loads(rep_path.read_text())
+        settings = {**report["settings"], "source_hash": report.get("source_hash")}
     except (KeyError, ValueError, OSError, json.JSONDecodeError) as exc:
         raise PlatolidarError(f"{root}: unreadable fit output ({exc})") from None
     if opacity.ndim != 3 or not np.all(np.isfinite(opacity)):
@@ -192,6 +193,33 @@ def _landing_points(box, cls, laser, dirs, step):
     return out
 
 
+def spot_normals(box, opacity, spots, surface_points, surface_normals):
+    """Unit normals (N, 3) of the surfaces at spots (N, 3): the sensor-visible point's normal where one lies
+    within 1.5 voxels, else minus the fit's opacity gradient around the spot's voxel (zero where flat: no
+    facing test then). A Lambertian spot lights only the half-space in front of its surface."""
+    d, i = _nearest(surface_points, spots)
+    out = torch.where((d <= 1.5 * box.voxel)[:, None], surface_normals[i], torch.zeros_like(spots))
+    need = torch.nonzero(d > 1.5 * box.voxel).squeeze(1)
+    if len(need):
+        vol = torch.as_tensor(opacity, dtype=torch.float32, device=spots.device)
+        grad = torch.stack(torch.gradient(vol), -1)                  # (nx, ny, nz, 3), per voxel
+        pooled = torch.nn.functional.avg_pool3d(grad.permute(3, 0, 1, 2)[None], 3, 1, 1)[0].permute(1, 2, 3, 0)
+        idx, _ = box.cell_index(spots[need])
+        g = -pooled[idx[:, 0], idx[:, 1], idx[:, 2]]
+        out[need] = g / torch.linalg.vector_norm(g, dim=1, keepdim=True).clamp(min=1e-9)
+    return out
+
+
+def _nearest(points, queries, chunk: int = 256):
+    """Distance and index of the nearest of `points` (P, 3) to each of `queries` (Q, 3)."""
+    ds, ids = [], []
+    for q in torch.split(queries, chunk):
+        d, i = torch.cdist(q, points).min(1)
+        ds.append(d)
+        ids.append(i)
+    return torch.cat(ds), torch.cat(ids)
+
+
 def beyond_view_directions(sensor, beyond_deg: float, n: int = 64):
     """Laser directions (M, 3) outside the sensor's image and at most `beyond_deg` beyond its edge, on a
     regular grid of image coordinates (the image's own projection, extended)."""
@@ -220,7 +248,10 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
     s.validate()
     opacity, lo, hi, level, fit_settings = load_fit_volume(fit_dir)
     dev = resolve_device(s.device, s.threads)
-    meas = measurements if measurements is not None else load_source(dataset, progress=False, device=dev)[0]
+    meas, src_hash = load_source(measurements if measurements is not None else dataset, progress=False, device=dev)
+    if fit_settings.get("source_hash") not in (None, src_hash):
+        raise PlatolidarError(f"{fit_dir}: fitted to other data than {dataset} (fit.json source_hash "
+                              f"{fit_settings['source_hash'][:24]}..., the data's {src_hash[:24]}...)")
     data = build_ray_data(meas).to(dev)
     if not bool(torch.isfinite(data.visible_depth).any()):
         raise PlatolidarError(f"{dataset}: no visible depth: the advisor needs the surface the sensor sees")
@@ -249,14 +280,15 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
     on_grid = (pix[:, 0] % s.pixel_stride == 0) & (pix[:, 1] % s.pixel_stride == 0)
     xs, ns = pts_all[on_grid], nrm_all[on_grid]
 
-    def values_of(spot: torch.Tensor) -> torch.Tensor:
-        facing = ((spot - xs) * ns).sum(1) > 0                  # x lit by a spot in front of its surface only
+    def values_of(spot: torch.Tensor, normal: torch.Tensor) -> torch.Tensor:
+        # Lambertian both ways: x faces the spot and the spot's surface faces x
+        facing = (((spot - xs) * ns).sum(1) > 0) & (((xs - spot) * normal).sum(1) >= 0)
         return _segment_values(box, cls, hull_index, n_hull, xs[facing], spot.expand_as(xs[facing]), off, step,
                                s.occupied_prior, dev)
 
     covered = torch.zeros(n_hull, device=dev)
-    for spot in data.spot_points:
-        covered = torch.maximum(covered, values_of(spot))
+    for spot, normal in zip(data.spot_points, spot_normals(box, opacity, data.spot_points, pts_all, nrm_all)):
+        covered = torch.maximum(covered, values_of(spot, normal))
 
     # candidates: spread-out visible points the laser reaches (+ laser directions beyond the view)
     rng = np.random.default_rng(s.seed)
@@ -282,7 +314,8 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
     cand = torch.cat(cand_pts)
     if len(cand) == 0:
         raise PlatolidarError(f"{dataset}: no candidate spot: no visible surface point the laser reaches")
-    cand_values = torch.stack([values_of(p) for p in cand])     # (C, n_hull)
+    cand_values = torch.stack([values_of(p, n) for p, n in zip(cand, spot_normals(box, opacity, cand, pts_all,
+                                                                                  nrm_all))])  # (C, n_hull)
 
     by_existing = int((covered > 0).sum())
     chosen, spots = [], []
