@@ -33,10 +33,12 @@ from ..contract.frames import project_points
 from ..contract.spots import pixel_directions, select_diverse_spots
 from .fields import GridBox
 from .init import _marching_cells, evidence_grid, in_view
-from .visible_surface_init import visible_surface
+from .visible_surface_init import _dilate_cube, visible_surface
 
 #: voxel classes along a segment
 FREE, HULL, SOLID = 0, 1, 2
+#: hull voxels this close (voxels, cube) to a measured surface voxel count as that surface
+SURFACE_BAND_VOXELS = 2
 
 
 @dataclass
@@ -78,6 +80,7 @@ class Advice:
     reached_by_existing: int          # of those, reached by an existing spot's segment
     voxel_m: float
     notes: list = field(default_factory=list)
+    details: dict = field(default_factory=dict, repr=False)   # the grid's arrays, for diagnostics
 
     def spot_list(self, include_existing: bool = False) -> str:
         """The simulator's --spot-list text 'x,y,z;...' (m)."""
@@ -119,7 +122,7 @@ def load_fit_volume(fit_dir):
 
 def voxel_classes(data, box: GridBox, opacity, level, fast: dict, meta: dict) -> torch.Tensor:
     """Flat (x-major) class per voxel: HULL (shadow hull in the measured space, crossed by no lit segment,
-    still occupied after training), SOLID (every other occupied voxel: measured surfaces, blockers, the
+    still occupied after training, more than SURFACE_BAND_VOXELS from a measured surface), SOLID (every other occupied voxel: measured surfaces, blockers, the
     completed planes) or FREE."""
     label, _ = evidence_grid(data, box, fast["surface_margin_voxels"], fast["carve_min_lit"],
                              fast["secondary_offset_voxels"] * box.voxel, fast["step_voxels"], fast["carve_core"],
@@ -133,7 +136,10 @@ def voxel_classes(data, box: GridBox, opacity, level, fast: dict, meta: dict) ->
     occupied = torch.as_tensor(opacity >= level, device=label.device)
     cls = torch.full(box.shape, FREE, dtype=torch.int8, device=label.device)
     cls[occupied] = SOLID
-    cls[occupied & (label == 0) & view] = HULL
+    # hidden voxels next to a measured surface are the surface's own thickness (a wall seen at a grazing angle
+    # has voxels no pixel's point lands in): solid, not unbounded space
+    band = _dilate_cube((label == 1).float(), SURFACE_BAND_VOXELS) > 0
+    cls[occupied & (label == 0) & view & ~band] = HULL
     return cls.reshape(-1)
 
 
@@ -318,6 +324,8 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
                                                                                   nrm_all))])  # (C, n_hull)
 
     by_existing = int((covered > 0).sum())
+    details = {"box": box, "hull_flat": hull_flat, "candidates": cand, "candidate_values": cand_values,
+               "existing_values": covered.clone()}
     chosen, spots = [], []
     for _ in range(min(s.add, len(cand))):
         gain = (cand_values - covered).clamp(min=0).sum(1)
@@ -333,4 +341,4 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
         spots.append(AdvisedSpot(point=cand[j].cpu().double().numpy(), pixel=cand_pix[j],
                                  voxels=int((cand_values[j] > 0).sum()), gain=float(gain[j])))
     return Advice(spots=spots, existing=data.spot_points.cpu().double().numpy(), hull_voxels=n_hull,
-                  reached_by_existing=by_existing, voxel_m=box.voxel, notes=notes)
+                  reached_by_existing=by_existing, voxel_m=box.voxel, notes=notes, details=details)
