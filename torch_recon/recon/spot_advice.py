@@ -226,6 +226,33 @@ def _nearest(points, queries, chunk: int = 256):
     return torch.cat(ds), torch.cat(ids)
 
 
+#: two-bounce paths must end this far before the sensor's last bin (the pulse's width and the sub-pixel spread)
+PATH_MARGIN_M = 0.25
+
+
+def _path_range_end(dataset):
+    """The optical path (m) at the end of the dataset's last time bin; None without a dataset directory."""
+    if dataset is None or not Path(dataset).is_dir():
+        return None
+    from ..contract.dataset import load_dataset
+
+    sensor = load_dataset(dataset).manifest.sensor
+    return float(sensor.start_m + sensor.bins * sensor.bin_width_m)
+
+
+def _longest_lit_path(spots, spot_nrm, xs, ns, data):
+    """Per spot (N, 3), the longest two-bounce path |l - o| + |x - l| + |c - x| over the visible points x that
+    face it and that it faces (what the sensor must record)."""
+    to_cam = torch.linalg.vector_norm(xs - data.sensor_origin, dim=1)
+    out = []
+    for l, n in zip(spots, spot_nrm):
+        v = l - xs
+        facing = ((v * ns).sum(1) > 0) & ((v * n).sum(1) <= 0)
+        path = torch.linalg.vector_norm(l - data.laser_origin) + torch.linalg.vector_norm(v, dim=1) + to_cam
+        out.append(path[facing].max() if bool(facing.any()) else path.new_tensor(0.0))
+    return torch.stack(out)
+
+
 def beyond_view_directions(sensor, beyond_deg: float, n: int = 64):
     """Laser directions (M, 3) outside the sensor's image and at most `beyond_deg` beyond its edge, on a
     regular grid of image coordinates (the image's own projection, extended)."""
@@ -318,10 +345,18 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
             notes.append(f"no laser direction within {s.beyond_view_deg} deg beyond the view lands on the fit's "
                          f"surface")
     cand = torch.cat(cand_pts)
+    cand_nrm = spot_normals(box, opacity, cand, pts_all, nrm_all)
+    end_m = _path_range_end(dataset) if measurements is None else None
+    if end_m is not None:       # the sensor must record every two-bounce return the spot causes
+        fits = _longest_lit_path(cand, cand_nrm, pts_all, nrm_all, data) < end_m - PATH_MARGIN_M
+        if not bool(fits.all()):
+            notes.append(f"{int((~fits).sum())} candidate(s) left out: their two-bounce paths would run past the "
+                         f"sensor's last bin ({end_m:.2f} m)")
+        cand, cand_nrm = cand[fits], cand_nrm[fits]
+        cand_pix = [p for p, ok in zip(cand_pix, fits.tolist()) if ok]
     if len(cand) == 0:
         raise PlatolidarError(f"{dataset}: no candidate spot: no visible surface point the laser reaches")
-    cand_values = torch.stack([values_of(p, n) for p, n in zip(cand, spot_normals(box, opacity, cand, pts_all,
-                                                                                  nrm_all))])  # (C, n_hull)
+    cand_values = torch.stack([values_of(p, n) for p, n in zip(cand, cand_nrm)])     # (C, n_hull)
 
     by_existing = int((covered > 0).sum())
     details = {"box": box, "hull_flat": hull_flat, "candidates": cand, "candidate_values": cand_values,
