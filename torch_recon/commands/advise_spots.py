@@ -46,8 +46,9 @@ def run(args) -> int:
               f"{sp.voxels:19d}  {sp.gain:15.0f}")
     for note in advice.notes:
         print(f"note: {note}")
-    print(f"simulate the advised spots: --spot-list={advice.spot_list()}")
-    print(f"with the dataset's spots:   --spot-list={advice.spot_list(include_existing=True)}")
+    if advice.spots:
+        print(f"simulate the advised spots: --spot-list={advice.spot_list()}")
+        print(f"with the dataset's spots:   --spot-list={advice.spot_list(include_existing=True)}")
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
         tmp = out.with_suffix(".json.tmp")

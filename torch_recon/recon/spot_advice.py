@@ -29,7 +29,6 @@ import numpy as np
 import torch
 
 from ..contract.errors import PlatolidarError, SettingsError
-from ..contract.frames import project_points
 from ..contract.spots import pixel_directions, select_diverse_spots
 from .fields import GridBox
 from .init import _marching_cells, evidence_grid, in_view
@@ -122,8 +121,8 @@ def load_fit_volume(fit_dir):
 
 def voxel_classes(data, box: GridBox, opacity, level, fast: dict, meta: dict) -> torch.Tensor:
     """Flat (x-major) class per voxel: HULL (shadow hull in the measured space, crossed by no lit segment,
-    still occupied after training, more than SURFACE_BAND_VOXELS from a measured surface), SOLID (every other occupied voxel: measured surfaces, blockers, the
-    completed planes) or FREE."""
+    still occupied after training, more than SURFACE_BAND_VOXELS from a measured surface), SOLID (every other
+    occupied voxel: measured surfaces, blockers, the completed planes) or FREE."""
     label, _ = evidence_grid(data, box, fast["surface_margin_voxels"], fast["carve_min_lit"],
                              fast["secondary_offset_voxels"] * box.voxel, fast["step_voxels"], fast["carve_core"],
                              carve_spacing_voxels=fast["carve_spacing_voxels"],
@@ -300,7 +299,7 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
     hull_index = torch.full((cls.numel(),), -1, dtype=torch.long, device=dev)
     hull_index[hull_flat] = torch.arange(len(hull_flat), device=dev)
     n_hull = len(hull_flat)
-    notes = []
+    notes = [] if n_hull else ["the fit has no unbounded shadow hull in the measured space: no spot to advise"]
     off = max(fit_settings["loss"]["secondary_offset_m"], fast["secondary_offset_voxels"] * box.voxel,
               fast["surface_margin_voxels"] * box.voxel)
     step = fast["step_voxels"] * box.voxel
@@ -368,8 +367,9 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
             gain[torch.as_tensor(chosen, device=dev)] = -1.0
         j = int(torch.argmax(gain))
         if float(gain[j]) <= 0:
-            notes.append(f"only {len(chosen)} spot(s) add anything: no other candidate reaches a hull voxel "
-                         f"they do not")
+            if n_hull:
+                notes.append(f"only {len(chosen)} spot(s) add anything: no other candidate reaches a hull voxel "
+                             f"they do not")
             break
         chosen.append(j)
         covered = torch.maximum(covered, cand_values[j])
