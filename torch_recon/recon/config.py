@@ -245,8 +245,8 @@ class FitConfig:
         if self.platonerf.reinit_dead not in ("both", "coarse", "off"):
             raise SettingsError("platonerf.reinit_dead",
                                 f"expected 'both', 'coarse' or 'off', got {self.platonerf.reinit_dead!r}")
-        if self.fast.thin_part_centre not in ("off", "depth", "mean", "seen"):
-            raise SettingsError("fast.thin_part_centre", f"expected 'off', 'depth', 'mean' or 'seen', got "
+        if self.fast.thin_part_centre not in ("off", "depth", "mean", "seen", "coverage"):
+            raise SettingsError("fast.thin_part_centre", f"expected 'off', 'depth', 'mean', 'coverage' or 'seen', got "
                                                           f"{self.fast.thin_part_centre!r}")
         if self.fast.surface_concave_corners not in ("off", "planes", "all"):
             raise SettingsError("fast.surface_concave_corners", f"expected 'off', 'planes' or 'all', got "
