@@ -24,7 +24,8 @@ _AROUND = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
 
 
 def part_coverage(data: RayData, thin, voxel: float):
-    """(H, W) fraction of each `thin` pixel's footprint the part in front covers, NaN where unknown: the rest of
+    """(H, W) fraction of each `thin` pixel's footprint the part in front covers, NaN where unknown (and on the
+    other pixels): the rest of
     the footprint sees the surface behind, so its strongest return is that much weaker than the return of a
     neighbour seeing only that surface (an 8-neighbour not `thin`, whose strongest return lies within `voxel` of
     the pixel's). 1 - the ratio of the strengths (matched-filter peaks), median over the spots lit at both: a
@@ -46,7 +47,8 @@ def part_coverage(data: RayData, thin, voxel: float):
         ref += torch.where(ok, aq, 0.0)
         n += ok
     ratio = a / (ref / n)                   # NaN where the pixel is not lit or no neighbour is a reference
-    return 1.0 - torch.nanmedian(ratio, -1).values.clamp(0.0, 1.0)
+    cov = 1.0 - torch.nanmedian(ratio, -1).values.clamp(0.0, 1.0)
+    return torch.where(thin, cov, torch.full_like(cov, float("nan")))
 
 
 def thin_part_points(data: RayData, voxel: float, samples: int = 4, edges: bool = True, centre: str = "off"):
