@@ -45,8 +45,8 @@ from .contract.errors import PreprocessError
 from .first_bounce import (FirstBounce, SubBinLUT, find_first_bounce, fit_out_of_view_spot, fit_pulse_sigma,
                            laser_ray_seen, subbin_offset)
 from .measurements import Measurements, SpotMeasurement
-from .shadow_decision import (FilterOutput, partial_shadow_mask, photon_counting, significant_return,
-                              unsupported_shadow_mask)
+from .shadow_decision import (FilterOutput, partial_shadow_mask, photon_counting, pooled_background,
+                              significant_return, unsupported_shadow_mask)
 
 
 @dataclass
@@ -189,6 +189,7 @@ def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: Prepro
     path = np.full((h, w), np.nan, np.float32)
     first = np.full((h, w), np.nan, np.float32)
     peak_n = np.zeros((h, w), np.float32)
+    off_sum, off_bins = np.zeros((h, w), np.float32), np.zeros((h, w), np.float32)
     if dense:   # centres stop h bins before the end, so the padded view below needs no copy
         gate_hi = min(gate_hi, sensor.bins - hw)
         if gate_hi <= gate_lo:
@@ -216,27 +217,32 @@ def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: Prepro
                 xp[:, :-a] = 0
         gg = xp.shape[1] - 2 * hw
         total = xp[:, hw:hw + gg].sum(dim=1)
-        # photons of the two-bounce return: the gated sum less the background, whose rate per bin is the
-        # median of a wide gate's 8-bin block means (a return fills one or two blocks; a median of a few
-        # blocks costs far less than one of all bins); a narrow window holds no background (the simulator
-        # stores only non-zero bins when there is none). Poisson: variance = signal + background.
-        if gg >= MIN_BACKGROUND_BINS and (settings.background != "median" or counting):
-            nb = gg // 8
-            blocks = xp[:, hw:hw + 8 * nb].reshape(-1, nb, 8).mean(dim=2)
-            bg = blocks.median(dim=1).values * gg
-        else:
-            bg = torch.zeros_like(total)
         # correlation with a short pulse: a few shifted multiply-adds beat conv1d and FFT here
         (j0, p0), rest = taps[0], taps[1:]
         corr = xp[:, j0:j0 + gg] * p0
         for j, pj in rest:
             corr.add_(xp[:, j:j + gg], alpha=pj)
         m, k = corr.max(dim=1)
-        if subtract:     # the normalised filter of the background-free transient: (m - rate) / (total - bg)
-            m_sig, total_sig = m - bg / gg * tap_sum, total - bg
-            c = torch.where(total_sig > 0, m_sig / total_sig.clamp_min(1e-30), torch.zeros_like(m))
+        # photons of the two-bounce return: the gated sum less the background. Photon counts: the background
+        # rate is what the gate holds outside the pulse template at the peak (pooled over neighbouring pixels
+        # after this loop: at 0.1 photons per bin a 32-bin gate often holds none); expected values: the median
+        # of a wide gate's 8-bin block means (a return fills one or two blocks); a narrow window holds no
+        # background (the simulator stores only non-zero bins when there is none). Poisson: variance = all.
+        if counting:
+            idx = k[:, None] + torch.arange(2 * hw + 1, device=device)
+            in_gate = (idx >= hw) & (idx < hw + gg)
+            off_n = total - (torch.gather(xp, 1, idx) * in_gate).sum(dim=1)
+            off_b = (gg - in_gate.sum(dim=1)).to(total.dtype)
+            bg = off_n / off_b.clamp_min(1) * gg       # this pixel's own estimate: sub-bin and earliest return
+            off_sum[r0:r1] = off_n.reshape(r1 - r0, w).cpu().numpy()
+            off_bins[r0:r1] = off_b.reshape(r1 - r0, w).cpu().numpy()
+        elif gg >= MIN_BACKGROUND_BINS and settings.background != "median":
+            nb = gg // 8
+            blocks = xp[:, hw:hw + 8 * nb].reshape(-1, nb, 8).mean(dim=2)
+            bg = blocks.median(dim=1).values * gg
         else:
-            c = torch.where(total > 0, m / total.clamp_min(1e-30), torch.zeros_like(m))
+            bg = torch.zeros_like(total)
+        c = torch.where(total > 0, m / total.clamp_min(1e-30), torch.zeros_like(m))
         # photons in the pulse's main bins at the filter peak: the return's significance (shadow_decision)
         peak_n[r0:r1] = sum(xp[:, j:j + gg].gather(1, k[:, None])[:, 0] for j in support).reshape(r1 - r0, w).cpu().numpy()
 
@@ -265,7 +271,13 @@ def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: Prepro
         background[r0:r1] = bg.reshape(r1 - r0, w).cpu().numpy()
         path[r0:r1] = p.reshape(r1 - r0, w).to(torch.float32).cpu().numpy()
         first[r0:r1] = p1.reshape(r1 - r0, w).to(torch.float32).cpu().numpy()
-    return FilterOutput(np.clip(conf, 0.0, 1.0), amp, path, counts, variance, background, first,
+    if counting:        # the background pooled over neighbouring pixels; with 'median' taken off the filter's sums
+        background = pooled_background(off_sum, off_bins, int(gg))
+        counts = np.maximum(variance - background, 0.0).astype(np.float32)
+        if subtract:
+            sig_total = variance - background
+            conf = np.where(sig_total > 0, (amp - background / gg * tap_sum) / np.maximum(sig_total, 1e-30), 0.0)
+    return FilterOutput(np.clip(conf, 0.0, 1.0).astype(np.float32), amp, path, counts, variance, background, first,
                         peak_counts=peak_n, support_bins=len(support), gate_bins=int(gg))
 
 

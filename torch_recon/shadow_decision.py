@@ -54,6 +54,22 @@ def photon_counting(tr: Transient, settings) -> bool:
     return bool(np.array_equal(w, np.round(w)))
 
 
+#: the background rate is pooled over (2 r + 1)^2 pixels: at 0.1 photons per bin a 32-bin gate holds 3 photons
+BACKGROUND_POOL_RADIUS = 2
+
+
+def pooled_background(off_sum, off_bins, gate_bins: int, radius: int = BACKGROUND_POOL_RADIUS) -> np.ndarray:
+    """(H, W) background photons per gate: the photons outside each pixel's return (`off_sum`, over `off_bins`
+    bins) summed over its (2 radius + 1)^2 neighbourhood, as a rate per bin, times `gate_bins`. Ambient light
+    varies slowly across the image; one pixel's gate alone is too short to measure a low rate (a zero
+    estimate would let any stray photon count as a return)."""
+    from scipy.ndimage import uniform_filter
+    size = 2 * radius + 1
+    n = uniform_filter(np.asarray(off_sum, np.float64), size, mode="nearest")
+    b = uniform_filter(np.asarray(off_bins, np.float64), size, mode="nearest")
+    return (np.where(b > 0, n / np.maximum(b, 1e-30), 0.0) * gate_bins).astype(np.float32)
+
+
 def significant_return(mf: FilterOutput, alpha: float) -> np.ndarray:
     """(H, W) bool: the filter peak holds more photons than the background would give, at false-alarm `alpha`.
 
