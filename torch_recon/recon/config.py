@@ -160,6 +160,7 @@ class FastConfig:
     hull_closure: str = "off"         # 'convex': hidden hull outside the convex hull of the voxels measured surfaces
                                       # and shadows' edges place (per connected part) starts empty where every
                                       # shadowed segment stays blocked (recon/hull_trim.py); 'off'
+    hull_closure_margin_voxels: float = 0.0  # ... only hull more than this far outside the convex hull
     hull_closure_graze_samples: int = 3  # ... a segment grazes the hull where it crosses at most this many samples of it
     hull_closure_min_segments: int = 1  # a shadow's edge places a voxel when this many shadowed segments graze it
     # --- start field outside the sensor's view and mesh (recon/init.py, recon/unobserved.py) ---

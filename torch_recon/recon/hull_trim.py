@@ -87,10 +87,10 @@ def sole_blockers(box, solid_flat: torch.Tensor, segments, step, max_samples: in
     return count[:n_all] >= min_segments
 
 
-def outside_convex_closure(parts: torch.Tensor, anchors: torch.Tensor) -> torch.Tensor:
-    """Voxels (bool (nx, ny, nz)) of `parts` outside the convex hull of the `anchors` voxels (whole voxels,
-    their corners) of their own 26-connected component of `parts`; components with anchors spanning no volume
-    are left whole."""
+def outside_convex_closure(parts: torch.Tensor, anchors: torch.Tensor, margin: float = 0.0) -> torch.Tensor:
+    """Voxels (bool (nx, ny, nz)) of `parts` more than `margin` voxels outside the convex hull of the `anchors`
+    voxels (whole voxels, their corners) of their own 26-connected component of `parts`; components with
+    anchors spanning no volume are left whole."""
     import numpy as np
     from scipy import ndimage
     from scipy.spatial import ConvexHull, QhullError
@@ -108,7 +108,7 @@ def outside_convex_closure(parts: torch.Tensor, anchors: torch.Tensor) -> torch.
         except QhullError:
             continue
         v = np.argwhere(sub)
-        outside = (v @ hull.equations[:, :3].T + hull.equations[:, 3] > 1e-6).any(1)
+        outside = (v @ hull.equations[:, :3].T + hull.equations[:, 3] > margin + 1e-6).any(1)
         o = np.zeros(sub.shape, bool)
         o[tuple(v[outside].T)] = True
         out[sl] |= o

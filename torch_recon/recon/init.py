@@ -300,7 +300,7 @@ def _hull_prior(data: RayData, box: GridBox, cfg, label, free, view, sd, shell, 
                                                         min_segments=cfg.hull_closure_min_segments,
                                                         max_samples=cfg.hull_closure_graze_samples).reshape(solid.shape)
                                           & parts)
-        outside = removable & outside_convex_closure(parts, anchors)
+        outside = removable & outside_convex_closure(parts, anchors, cfg.hull_closure_margin_voxels)
         # ... and the layer of hull between it and the floor or wall it stood on (parts leave that layer out)
         removed |= outside | (removable & ~parts & (_dilate_cube(outside.float(), 1) > 0))
     removed = keep_blocked(box, solid, removed, segs, step) if bool(removed.any()) else removed
