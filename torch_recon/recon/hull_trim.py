@@ -7,6 +7,12 @@ either, nothing measured needs it: it is a lump that only the rays' coverage lef
 319 within a voxel of the chair, none). Such voxels are emptied when connected to measured free space
 through voxels like them, up to `depth_voxels` deep; the visible-surface band (where the measured depth
 places the surface) is never trimmed, so the space behind walls and objects' interiors stay closed.
+
+A prior for the hull that shadowed rays do cross but no measurement bounds (opt-in, `init._hull_prior`):
+a part's hull outside the convex closure of the voxels a measured surface or a shadow's edge places
+(`outside_convex_closure`, `sole_blockers`), or thinner than a ball (`opening`), is emptied while every
+shadowed segment stays blocked (`keep_blocked`). Measured in docs/reconstruction.md ("A prior for the space
+no measurement bounds").
 """
 
 from __future__ import annotations
@@ -56,14 +62,6 @@ def unblocked_segments(box, blocker: torch.Tensor, origins, dirs, near, far, ste
         flat = flat.where(keep, 0.0).long()
         hit[rays] = (keep & blocker[flat]).any(1)
     return ~hit
-
-
-def thin_hull(solid: torch.Tensor, removable: torch.Tensor, radius: int, box, segments, step) -> torch.Tensor:
-    """Voxels (bool (nx, ny, nz)) of the shadow hull to empty as thinner than a ball of `radius` voxels (a
-    morphological opening of `solid`, the space not known free), among `removable` (hull no measured surface
-    places), while every shadowed segment (`segments`: origins, dirs, near, far) stays blocked."""
-    removed = removable & solid & ~opening(solid, radius)
-    return keep_blocked(box, solid, removed, segments, step) if bool(removed.any()) else removed
 
 
 def sole_blockers(box, solid_flat: torch.Tensor, segments, step, max_samples: int = 3, min_segments: int = 1

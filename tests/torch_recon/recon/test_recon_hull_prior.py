@@ -87,3 +87,19 @@ def test_hull_prior_settings_refuse_bad_values():
         override(FitConfig(), ["fast.hull_closure=round"])
     with pytest.raises(SettingsError, match=r"fast\.hull_opening_voxels"):
         override(FitConfig(), ["fast.hull_opening_voxels=-1"])
+
+
+@pytest.mark.parametrize("setting", [("hull_closure", "convex"), ("hull_opening_voxels", 1)])
+def test_prior_keeps_the_box_a_shadow_measures(setting):
+    """Tiny box on a floor (4 spots): with the prior on, the start still holds the box's hidden back face."""
+    import numpy as np
+
+    from tests.support.recon_fixtures import BOX_BACK_Y, box_floor_measurements
+    from tests.torch_recon.recon.test_recon_fit import BACK_FACE_TOL_M, back_face_y, small_config
+    from torch_recon.recon import fit
+
+    cfg = small_config(steps=0)
+    setattr(cfg.fast, *setting)
+    r = fit(box_floor_measurements(32), config=cfg)
+    assert np.isfinite(r.volume).all()
+    assert abs(back_face_y(r) - BOX_BACK_Y) < BACK_FACE_TOL_M
