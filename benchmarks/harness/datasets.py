@@ -23,7 +23,8 @@ def simulate_args(example: str, resolution: int, spots: int, options: dict) -> l
         if value is True:
             args.append(flag)
         elif value is not None and value is not False:
-            args += [flag, str(value)]
+            # a value starting with '-' (a spot list's negative x) would read as a flag: one token then
+            args += [f"{flag}={value}"] if str(value).startswith("-") else [flag, str(value)]
     return args
 
 

@@ -105,6 +105,11 @@ def test_run_cli_times_a_real_subprocess(tmp_path):
 def test_dataset_cache_revalidates(tmp_path):
     args = simulate_args("cave-chair", 8, 4, {"poisson": True, "photons": 100, "no_gt": False})
     assert args == ["--example", "cave-chair", "--resolution", "8", "--spots", "4", "--photons", "100", "--poisson"]
+    # a spot list starting with a negative coordinate stays one token (argparse would read '-1.2,...' as a flag)
+    assert simulate_args("cave-chair", 8, 4, {"spot_list": "-1.2,3,0;1,2,3"})[-1] == "--spot-list=-1.2,3,0;1,2,3"
+    from pipeline.simulate import build_parser
+    assert build_parser().parse_args([*simulate_args("cave-chair", 8, 4, {"spot_list": "-1.2,3,0"}),
+                                      "--out", "x"]).spot_list == "-1.2,3,0"
     out = tmp_path / "ds"
     assert cache_problem(out, args) == "not cached"
     out.mkdir()
