@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..contract.analytic import first_hits
-from .objects import ObjectMetricSettings, Surface, _density_samples, _rest_of_scene, sensor_visible
+from .objects import ObjectMetricSettings, Surface, sample_count, rest_of_scene, sensor_visible
 
 FACE_DIRECTIONS = ("+x", "-x", "+y", "-y", "+z", "-z")
 
@@ -56,16 +56,16 @@ def hidden_miss_causes(gt_mesh, objects, sensor, spots, recon, truth_recon=None,
     a fit with truth labels (None: `labels` and `fit` are not split, `lit_segment` counts both)."""
     from scipy.spatial import cKDTree
     s = settings or ObjectMetricSettings()
-    rec = Surface(recon, _density_samples(recon.area, s.recon_samples_per_m2, 20_000, 400_000), s.seed + 4)
-    tru = None if truth_recon is None else Surface(truth_recon, _density_samples(
+    rec = Surface(recon, sample_count(recon.area, s.recon_samples_per_m2, 20_000, 400_000), s.seed + 4)
+    tru = None if truth_recon is None else Surface(truth_recon, sample_count(
         truth_recon.area, s.recon_samples_per_m2, 20_000, 400_000), s.seed + 4)
     out = {}
     for i, (name, m) in enumerate(objects):      # the same samples, seeds and contact rule as evaluate's
         os_ = Surface(m, s.gt_samples_per_object, s.seed + 10 + i)
-        rest = _rest_of_scene(gt_mesh, objects, i)
+        rest = rest_of_scene(gt_mesh, objects, i)
         g, gf = os_.samples, os_.sample_faces
         if rest is not None:
-            rs = Surface(rest, _density_samples(rest.area, s.scene_samples_per_m2, 20_000, 300_000), s.seed + 30 + i)
+            rs = Surface(rest, sample_count(rest.area, s.scene_samples_per_m2, 20_000, 300_000), s.seed + 30 + i)
             keep = rs.distance(g) >= s.contact_m
             g, gf = g[keep], gf[keep]
         nrm = os_.mesh.face_normals[gf]

@@ -80,7 +80,9 @@ def _split_large_triangles(mesh, max_edge_m):
     return trimesh.Trimesh(v, f, process=False)
 
 
-def _density_samples(area, per_m2, lo=2000, hi=400_000):
+def sample_count(area, per_m2, lo=2000, hi=400_000):
+    """Surface samples for a mesh of `area` m2 at `per_m2`, clipped to [lo, hi] (one rule for every sampler
+    here and in hidden_causes, so both draw identical samples)."""
     return int(np.clip(area * per_m2, lo, hi))
 
 
@@ -139,14 +141,14 @@ def object_surface_metrics(recon, gt_mesh, objects, sensor=None, settings: Objec
     out = {"settings": asdict(s), "objects": {}}
     n_deg = 0 if recon is None else degenerate_face_count(recon, s.degenerate_area_m2)
     empty = recon is None or len(recon.faces) == 0 or float(recon.area) <= 0
-    gt_all = Surface(gt_mesh, _density_samples(gt_mesh.area, s.scene_samples_per_m2, 20_000, 300_000), s.seed + 1)
+    gt_all = Surface(gt_mesh, sample_count(gt_mesh.area, s.scene_samples_per_m2, 20_000, 300_000), s.seed + 1)
     scene = {"degenerate_faces": n_deg, "n_faces": 0 if recon is None else int(len(recon.faces))}
     if empty:
         scene.update({"spurious_fraction": None, "normal_consistency": None, "note": "empty reconstruction"})
     else:
         r_pts, r_faces = trimesh.sample.sample_surface(recon, s.scene_samples, seed=s.seed)
         d_rg, f_g = gt_all.distance(r_pts, return_faces=True)
-        rec_surf = Surface(recon, _density_samples(recon.area, s.scene_samples_per_m2, 20_000, 300_000), s.seed + 2, k=8)
+        rec_surf = Surface(recon, sample_count(recon.area, s.scene_samples_per_m2, 20_000, 300_000), s.seed + 2, k=8)
         g_pts, g_faces = gt_all.samples[:s.scene_samples], gt_all.sample_faces[:s.scene_samples]
         d_gr, f_r = rec_surf.distance(g_pts, return_faces=True)
         nc_r = np.abs(np.einsum("ij,ij->i", recon.face_normals[r_faces], gt_all.mesh.face_normals[f_g]))
@@ -178,14 +180,14 @@ def object_surface_metrics(recon, gt_mesh, objects, sensor=None, settings: Objec
             for lo, hi in boxes:
                 near |= np.all((tmax >= lo) & (tmin <= hi), axis=1)
             sub = sub.submesh([np.flatnonzero(near)], append=True)
-            n = min(_density_samples(sub.area, s.recon_samples_per_m2, 2000, s.max_region_samples),
+            n = min(sample_count(sub.area, s.recon_samples_per_m2, 2000, s.max_region_samples),
                     s.max_region_samples)
             reg_pts, _ = trimesh.sample.sample_surface(sub, n, seed=s.seed + 3)
             inside = np.zeros(len(reg_pts), bool)
             for lo, hi in boxes:
                 inside |= _in_box(reg_pts, lo, hi)
             reg_pts = reg_pts[inside]
-            rec_surf_region = Surface(sub, _density_samples(sub.area, s.recon_samples_per_m2, 20_000,
+            rec_surf_region = Surface(sub, sample_count(sub.area, s.recon_samples_per_m2, 20_000,
                                                             2 * s.max_region_samples), s.seed + 4)
     d_reg_all = gt_all.distance(reg_pts) if len(reg_pts) else np.zeros(0)
     scene["objects_spurious_fraction"] = float((d_reg_all > s.spurious_m).mean()) if len(reg_pts) else None
@@ -194,8 +196,8 @@ def object_surface_metrics(recon, gt_mesh, objects, sensor=None, settings: Objec
     obj_surfs = [Surface(m, s.gt_samples_per_object, s.seed + 10 + i) for i, (_, m) in enumerate(objects)]
     for i, (name, m) in enumerate(objects):
         os_ = obj_surfs[i]
-        rest = _rest_of_scene(gt_mesh, objects, i)
-        rest_surf = Surface(rest, _density_samples(rest.area, s.scene_samples_per_m2, 20_000, 300_000),
+        rest = rest_of_scene(gt_mesh, objects, i)
+        rest_surf = Surface(rest, sample_count(rest.area, s.scene_samples_per_m2, 20_000, 300_000),
                             s.seed + 30 + i) if rest is not None else None
         g_pts, g_faces = os_.samples, os_.sample_faces
         contact = (rest_surf.distance(g_pts) < s.contact_m) if rest_surf is not None else np.zeros(len(g_pts), bool)
@@ -231,7 +233,7 @@ def object_surface_metrics(recon, gt_mesh, objects, sensor=None, settings: Objec
     return out
 
 
-def _rest_of_scene(gt_mesh, objects, i):
+def rest_of_scene(gt_mesh, objects, i):
     """The GT without object i: the other objects and the room (found by removing object i's faces)."""
     import trimesh
     others = [m for j, (_, m) in enumerate(objects) if j != i]
