@@ -21,13 +21,13 @@ Confidence = inliers / spots that measured the pixel (lit or shadow).
 
 Nearest depth. A pixel partly covered by a thin part (a leg narrower than the pixel) holds two returns
 per spot; the strongest (above) usually is the surface behind. Each spot's earliest significant return
-(`first_return_path`) gives a range the same way; how far it lies in front of that spot's own strongest
-return is the spot's lead (0 where both are the same peak). The nearest surface of the pixel is the
-depth less the second largest lead (two spots must see it: one spot's stray early peak does not count).
-Camera rays are free only up to it. Leads, not the earliest ranges themselves: the spots' ranges scatter
-by their sub-bin error (1024 ps bins: 2.6 cm mean, 5.4 cm p90 on cave-chair), and the second smallest
-of 16 scattered ranges put a "nearest surface" 5-15 cm in front of almost every pixel (a leg everywhere:
-spurious 18 %); a lead is a difference of two peaks of the same transient and has no such scatter.
+(`first_return_path`) gives a range the same way. A spot whose earliest return is a peak of its own, in
+front of its strongest, names that range; every other spot names the fused depth. The nearest surface of
+the pixel is the second smallest of them (two spots must see it: one spot's stray early peak does not
+count). Camera rays are free only up to it. Spots without an earlier peak name the fused depth, not
+their own range: the spots' ranges scatter by their sub-bin error (1024 ps bins: 2.6 cm mean, 5.4 cm p90
+on cave-chair), and the second smallest of 16 scattered ranges put a "nearest surface" 5-15 cm in front
+of almost every pixel (a thin part everywhere: spurious surface 18 % of the mesh).
 """
 
 from __future__ import annotations
@@ -87,7 +87,7 @@ def fuse_visible_depth(meas, device="cpu", inlier_m: float | None = None, keep_p
         if s.first_return_path is not None:
             p1 = torch.as_tensor(np.where(s.signal, s.first_return_path, np.nan), dtype=dtype, device=device)
             t1 = ellipsoid_range(p1, s.first_bounce, meas.laser_origin, c, dirs)[0]
-            firsts.append((t - t1).clamp_min(0))        # the lead of the earliest return (NaN: none)
+            firsts.append(torch.where(t1 < t, t1, torch.full_like(t1, float("inf"))))   # an earlier peak's range
         ws.append(1.0 / (dt * dt).clamp_min(1e-6))
         measured.append(torch.as_tensor(~np.asarray(s.excluded, bool), device=device))
     t = torch.stack(ts)                                    # (S, H, W)
@@ -103,10 +103,11 @@ def fuse_visible_depth(meas, device="cpu", inlier_m: float | None = None, keep_p
     conf = torch.where(n_meas > 0, n_inl.to(dtype) / n_meas.clamp_min(1).to(dtype), torch.zeros_like(med))
     nearest = None
     if len(firsts) == len(ts) and len(ts) >= 2:
-        lead = torch.stack(firsts)
-        # the second largest lead = the second smallest of the negated ones; fewer than two spots: no lead
-        second = -torch.kthvalue(torch.where(torch.isfinite(lead), -lead, torch.zeros_like(lead)), 2, dim=0).values
-        nearest = (depth - second).to(torch.float32).cpu().numpy()
+        t1 = torch.stack(firsts)
+        # a spot without an earlier peak names the fused depth (inf where an earlier peak's range is NaN)
+        t1 = torch.where(torch.isinf(t1) & (t1 > 0), depth.expand_as(t1), torch.nan_to_num(t1, nan=float("inf")))
+        second = torch.kthvalue(torch.where(torch.isfinite(t1), t1, torch.full_like(t1, float("inf"))), 2, dim=0).values
+        nearest = torch.where(torch.isfinite(depth), torch.fmin(second, depth), depth).to(torch.float32).cpu().numpy()
     return VisibleDepth(depth=depth.to(torch.float32).cpu().numpy(), confidence=conf.to(torch.float32).cpu().numpy(),
                         count=torch.isfinite(t).sum(0).cpu().numpy(),
                         per_spot=t.to(torch.float32).cpu().numpy() if keep_per_spot else None, nearest=nearest)
