@@ -80,7 +80,7 @@ def test_coarse_bins_scatter_of_the_spots_ranges_makes_no_nearer_surface():
         err = np.float32((-0.06, -0.03, 0.09)[k])
         s.path_length, s.first_return_path = s.path_length + err, s.first_return_path + err
     f2 = fuse_visible_depth(m2, inlier_m=0.3)
-    assert f2.nearest[0, 0] == pytest.approx(2.0, abs=0.05)
+    assert f2.nearest[0, 0] == pytest.approx(2.0, abs=0.08)      # the earlier peaks carry their own sub-bin error
     assert f2.nearest[0, 1] == pytest.approx(f2.depth[0, 1], abs=1e-6)
 
 
