@@ -7,7 +7,10 @@ shadow hull keeps every voxel between the lit secondary rays. A 32 x 32 px senso
 voxels a pixel on cave-chair) gave a lattice of blobs over the room (depth L1 0.84 m, spurious 42 %).
 `fast.max_voxels_per_pixel` caps the grid: at most that many voxels across one pixel's footprint at the
 far surfaces (the 95th percentile visible depth, `init.far_pixel_spacing`). At 128 px the footprint is
-about one voxel of the 128 grid, so the default grid stays 128 there; a 32 px sensor gets a grid of ~44.
+about one voxel of the 128 grid and at 64 px about two, so the default grid (cap 2.2) stays 128 there; a
+32 px sensor gets a grid of 65 (cave-chair: depth L1 0.84 -> 0.33 m, the walls whole; the chair stays a
+blob, object F@2cm 0.23 -> 0.20: 32 px leaves about 3 x 5 pixels on it). A cap of 1.5 (grid 45 at 32 px)
+gave L1 0.24 m but lost the chair (F@2cm 0.08), and at 64 px (grid 89) F@2cm 0.774 -> 0.732.
 """
 
 from __future__ import annotations
