@@ -45,7 +45,8 @@ from .contract.errors import PreprocessError
 from .first_bounce import (FirstBounce, SubBinLUT, find_first_bounce, fit_out_of_view_spot, fit_pulse_sigma,
                            laser_ray_seen, subbin_offset)
 from .measurements import Measurements, SpotMeasurement
-from .shadow_decision import FilterOutput, partial_shadow_mask, photon_counting, unsupported_shadow_mask
+from .shadow_decision import (FilterOutput, partial_shadow_mask, photon_counting, pooled_background,
+                              significant_return, unsupported_shadow_mask)
 
 
 @dataclass
@@ -73,6 +74,9 @@ class PreprocessSettings:
                                        # counting noise); 'auto': 'poisson' when every stored value is an integer
     shadow_false_alarm: float = 0.05  # a dark pixel next to lit ones is a shadow only where a lit pixel
                                       # that dark has a Poisson probability below this (else unlabelled; 0: off)
+    return_false_alarm: float = 1e-3  # photon counts over a background: a pixel is lit only where its peak's
+                                      # photons would come from the background alone with a probability below
+                                      # this (shadow_decision.significant_return; 0: off)
     same_surface_bins: float = 2.0     # neighbours count as the same surface within this many bins of path
     chunk_elements: int = 1 << 20      # bins per chunk: 4 MB tensors stay in the allocator's heap (1 << 24:
                                        # 64 MB ones were mapped afresh each time, 10.7 of 27 CPU-s at 512 px in page faults)
@@ -101,6 +105,8 @@ class PreprocessSettings:
             raise PreprocessError(f"photon_statistics must be 'auto', 'poisson' or 'none', got {self.photon_statistics!r}")
         if not 0.0 <= self.shadow_false_alarm < 1.0:
             raise PreprocessError(f"shadow_false_alarm must be in [0, 1), got {self.shadow_false_alarm}")
+        if not 0.0 <= self.return_false_alarm < 1.0:
+            raise PreprocessError(f"return_false_alarm must be in [0, 1), got {self.return_false_alarm}")
         if not 0.0 <= self.first_return_fraction < 1.0:
             raise PreprocessError(f"first_return_fraction must be in [0, 1), got {self.first_return_fraction}")
         if not 0.0 <= self.partial_unlabel_ratio < 1.0:
@@ -170,6 +176,8 @@ def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: Prepro
     pulse = torch.as_tensor(fb.pulse, dtype=torch.float32, device=device)
     # taps below 1e-3 of the peak change the confidence by < 0.1 % and cost a full pass each
     taps = [(j, float(pulse[j])) for j in range(len(fb.pulse)) if fb.pulse[j] >= 1e-3 * fb.pulse.max()]
+    tap_sum = sum(pj for _, pj in taps)
+    support = [j for j, pj in taps if pj >= RETURN_SUPPORT_FRACTION * fb.pulse.max()]
     lut = SubBinLUT(fb.pulse_sigma_bins) if settings.refine == "lut" else None
     dense = tr.is_dense
     rows_per_chunk = max(1, settings.chunk_elements // max(w * g, 1))
@@ -180,6 +188,8 @@ def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: Prepro
     background = np.zeros((h, w), np.float32)
     path = np.full((h, w), np.nan, np.float32)
     first = np.full((h, w), np.nan, np.float32)
+    peak_n = np.zeros((h, w), np.float32)
+    off_sum, off_bins = np.zeros((h, w), np.float32), np.zeros((h, w), np.float32)
     if dense:   # centres stop h bins before the end, so the padded view below needs no copy
         gate_hi = min(gate_hi, sensor.bins - hw)
         if gate_hi <= gate_lo:
@@ -197,35 +207,52 @@ def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: Prepro
             base = torch.from_numpy(tr.start_bin[r0:r1].reshape(-1)).to(device)
             absb = base[:, None] + torch.arange(g, device=device)
             xp = torch.nn.functional.pad(x * ((absb >= gate_lo) & (absb < gate_hi)), (hw, hw))
-        if settings.background == "median":
+        # expected values: the median is the background. Photon counts keep their values (clamping x - median
+        # at 0 leaves the positive half of the noise: in a 32-bin gate a few stray photons then look like a
+        # pulse to the normalised filter); their background is estimated below and taken off the sums.
+        subtract = settings.background == "median" and counting
+        if settings.background == "median" and not counting:
             xp = (xp - xp[:, hw:xp.shape[1] - hw].median(dim=1, keepdim=True).values).clamp_min(0)
             if dense and a < 0:
                 xp[:, :-a] = 0
         gg = xp.shape[1] - 2 * hw
         total = xp[:, hw:hw + gg].sum(dim=1)
-        # photons of the two-bounce return: the gated sum less the background, whose rate per bin is the
-        # median of a wide gate's 8-bin block means (a return fills one or two blocks; a median of a few
-        # blocks costs far less than one of all bins); a narrow window holds no background (the simulator
-        # stores only non-zero bins when there is none). Poisson: variance = signal + background.
-        if gg >= MIN_BACKGROUND_BINS and settings.background != "median":
-            nb = gg // 8
-            blocks = xp[:, hw:hw + 8 * nb].reshape(-1, nb, 8).mean(dim=2)
-            bg = blocks.median(dim=1).values * gg
-        else:
-            bg = torch.zeros_like(total)
         # correlation with a short pulse: a few shifted multiply-adds beat conv1d and FFT here
         (j0, p0), rest = taps[0], taps[1:]
         corr = xp[:, j0:j0 + gg] * p0
         for j, pj in rest:
             corr.add_(xp[:, j:j + gg], alpha=pj)
         m, k = corr.max(dim=1)
+        # photons of the two-bounce return: the gated sum less the background. Photon counts: the background
+        # rate is what the gate holds outside the pulse template at the peak (pooled over neighbouring pixels
+        # after this loop: at 0.1 photons per bin a 32-bin gate often holds none); expected values: the median
+        # of a wide gate's 8-bin block means (a return fills one or two blocks); a narrow window holds no
+        # background (the simulator stores only non-zero bins when there is none). Poisson: variance = all.
+        if counting:
+            idx = k[:, None] + torch.arange(2 * hw + 1, device=device)
+            in_gate = (idx >= hw) & (idx < hw + gg)
+            off_n = total - (torch.gather(xp, 1, idx) * in_gate).sum(dim=1)
+            off_b = (gg - in_gate.sum(dim=1)).to(total.dtype)
+            bg = off_n / off_b.clamp_min(1) * gg       # this pixel's own estimate: sub-bin and earliest return
+            off_sum[r0:r1] = off_n.reshape(r1 - r0, w).cpu().numpy()
+            off_bins[r0:r1] = off_b.reshape(r1 - r0, w).cpu().numpy()
+        elif gg >= MIN_BACKGROUND_BINS and settings.background != "median":
+            nb = gg // 8
+            blocks = xp[:, hw:hw + 8 * nb].reshape(-1, nb, 8).mean(dim=2)
+            bg = blocks.median(dim=1).values * gg
+        else:
+            bg = torch.zeros_like(total)
         c = torch.where(total > 0, m / total.clamp_min(1e-30), torch.zeros_like(m))
+        # photons in the pulse's main bins at the filter peak: the return's significance (shadow_decision)
+        peak_n[r0:r1] = sum(xp[:, j:j + gg].gather(1, k[:, None])[:, 0] for j in support).reshape(r1 - r0, w).cpu().numpy()
 
         def peak_path(k):
             # the raw maximum next to the filter peak k, then its sub-bin offset from 3 bins
             idx = k[:, None] + hw + torch.arange(-1, 2, device=device)
             kk = (k + torch.gather(xp, 1, idx).argmax(dim=1) - 1).clamp(0, gg - 1)
             three = torch.gather(xp, 1, kk[:, None] + hw + torch.arange(-1, 2, device=device))
+            if subtract:
+                three = (three - (bg / gg)[:, None]).clamp_min(0)
             off = subbin_offset(three[:, 0], three[:, 1], three[:, 2], settings.refine, lut, torch)
             return sensor.start_m + (base + kk).to(torch.float64) * bw + (0.5 + off.to(torch.float64)) * bw
 
@@ -244,7 +271,18 @@ def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: Prepro
         background[r0:r1] = bg.reshape(r1 - r0, w).cpu().numpy()
         path[r0:r1] = p.reshape(r1 - r0, w).to(torch.float32).cpu().numpy()
         first[r0:r1] = p1.reshape(r1 - r0, w).to(torch.float32).cpu().numpy()
-    return FilterOutput(np.clip(conf, 0.0, 1.0), amp, path, counts, variance, background, first)
+    if counting:        # the background pooled over neighbouring pixels; with 'median' taken off the filter's sums
+        background = pooled_background(off_sum, off_bins, int(gg))
+        counts = np.maximum(variance - background, 0.0).astype(np.float32)
+        if subtract:
+            sig_total = variance - background
+            conf = np.where(sig_total > 0, (amp - background / gg * tap_sum) / np.maximum(sig_total, 1e-30), 0.0)
+    return FilterOutput(np.clip(conf, 0.0, 1.0).astype(np.float32), amp, path, counts, variance, background, first,
+                        peak_counts=peak_n, support_bins=len(support), gate_bins=int(gg))
+
+
+#: the pulse's main bins (the return's significance test counts their photons): taps >= this x the peak tap
+RETURN_SUPPORT_FRACTION = 0.1
 
 
 #: standard deviations of the filtered counting noise an earliest return must exceed (photon counts)
@@ -293,6 +331,8 @@ def process_spot(tr: Transient, sensor, spot, settings: PreprocessSettings, devi
     if fb.pixel is not None:
         excluded[fb.pixel] = True
     signal = (conf >= settings.shadow_threshold) & ~excluded
+    if counting and settings.return_false_alarm > 0:        # under ambient light: a return must outnumber it
+        signal &= significant_return(mf, settings.return_false_alarm)
     # darkness is judged against the lit pixels of the matched filter, before partial shadows join the dark
     unlabelled = unsupported_shadow_mask(mf, signal, excluded, settings.shadow_false_alarm) \
         if counting and settings.shadow_false_alarm > 0 else np.zeros_like(signal)

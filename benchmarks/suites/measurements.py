@@ -113,7 +113,8 @@ def cycles_rows(ctx, s: Settings, res: int) -> list[dict]:
             runners.row("bflidar (grid search, reused measurements)", scene, b, source="cycles", resolution=res)]
 
 
-SHADOW_DECISIONS = {"matched filter (paper)": dict(partial_shadow_ratio=0.0, shadow_false_alarm=0.0),
+SHADOW_DECISIONS = {"matched filter (paper)": dict(partial_shadow_ratio=0.0, shadow_false_alarm=0.0,
+                                                   return_false_alarm=0.0),
                     "photon-count test": {},
                     "photon-count test, partly shadowed unlabelled": dict(partial_unlabel_ratio=0.8)}
 

@@ -195,3 +195,69 @@ def test_partly_shadowed_band_for_the_unlabel_ratio():
     assert not partial_shadow_mask(*args)[:, 31].any()
     assert partial_shadow_mask(*args, ratio=0.8)[2:-2, 31].mean() >= 0.9
     assert partial_shadow_mask(*args, ratio=0.8)[:, :29].mean() < 0.002
+
+
+@pytest.fixture(scope="module")
+def occluder_ambient(tmp_path_factory):
+    """The occluder scene at 300 photons for the brightest pixel under 1 (and 0.1) ambient photons per pixel per
+    bin: dense (391 bins) and a 32-bin gate centred on each pixel's expected return; and the exact dataset."""
+    sensor = lambda: default_sensor(32, 32, bins=391)          # noqa: E731 (the writer sets its gate)
+    lds = paper_laser_directions()[[0, 4]]
+    out = tmp_path_factory.mktemp("ambient")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        exact, _ = write_analytic_dataset(out / "exact", occluder_scene(), sensor(), lds)
+        noisy = {(g, a): write_analytic_dataset(out / f"gate{g}-{a}", occluder_scene(), sensor(), lds,
+                                                photons_per_pixel=300.0, ambient_per_bin=a, seed=5, window_bins=g,
+                                                window_start="expected")[0] for g, a in ((None, 1.0), (32, 1.0), (32, 0.1))}
+    return load_dataset(exact), {g: load_dataset(p) for g, p in noisy.items()}
+
+
+def _shadow_agreement(m, ref):
+    sh = np.stack([s.shadow for s in m.spots])
+    ref_sh = np.stack([s.shadow for s in ref.spots])
+    labelled = np.stack([s.shadow | s.signal for s in ref.spots])
+    tp = (sh & ref_sh & labelled).sum()
+    return tp / max((sh & labelled).sum(), 1), tp / max(ref_sh.sum(), 1)
+
+
+@pytest.mark.parametrize("gate,ambient", [(None, 1.0), (32, 1.0), (32, 0.1)])
+def test_shadows_under_ambient_light_with_and_without_a_gate(occluder_ambient, gate, ambient):
+    """Ambient light, background 'median': a shadowed pixel holds only stray background photons. Taking the
+    median off and clamping at 0 left a few of them, which the normalised filter called a pulse: in a 32-bin
+    gate 1 % of the shadows were found (ungated: precision 0.51). With the background estimated and taken off
+    the sums, and the peak's photons tested against it (significant_return): precision 0.94, recall 0.83-0.87.
+    At 0.1 photons per bin a 32-bin gate often holds no background photon: a per-pixel estimate of 0 let
+    every stray photon count as a return (recall 0.04 on cave-chair); pooled over 5 x 5 pixels it does not."""
+    exact, noisy = occluder_ambient
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ref = preprocess_dataset(exact)
+        m = preprocess_dataset(noisy[gate, ambient], PreprocessSettings(background="median"))
+    precision, recall = _shadow_agreement(m, ref)
+    assert recall > 0.8 and precision > 0.9, (precision, recall)
+    for s in m.spots:
+        assert np.all(np.isfinite(s.shadow_confidence)) and np.all((s.shadow_confidence >= 0) & (s.shadow_confidence <= 1))
+
+
+def test_significant_return_counts_photons_against_the_background():
+    """3 photons in a 2-bin support over 1 photon per bin (32 bins searched) are no return, 15 are; without a
+    background estimate every peak passes."""
+    from torch_recon.shadow_decision import significant_return
+    n = np.array([[3.0, 15.0, 0.0]])
+    f = FilterOutput(confidence=np.ones_like(n), amplitude=n, path=np.full(n.shape, 6.0), counts=n, variance=n + 32,
+                     background=np.full(n.shape, 32.0), peak_counts=n, support_bins=2, gate_bins=32)
+    assert significant_return(f, 1e-3).tolist() == [[False, True, False]]
+    f.background = np.zeros_like(n)
+    assert significant_return(f, 1e-3).all()
+
+
+def test_pooled_background_fills_pixels_without_background_photons():
+    """0.1 photons per bin over 25 off-return bins: many pixels hold none; the 5 x 5 pooled rate is near 0.1
+    everywhere (times the 32 gate bins), never 0."""
+    from torch_recon.shadow_decision import pooled_background
+    rng = np.random.default_rng(0)
+    off = rng.poisson(0.1 * 25, size=(32, 32)).astype(np.float32)
+    assert (off == 0).mean() > 0.05
+    bg = pooled_background(off, np.full(off.shape, 25.0, np.float32), 32)
+    assert bg.min() > 0 and abs(np.median(bg) / 32 - 0.1) < 0.02

@@ -80,11 +80,15 @@ def default_sensor(width=32, height=32, bins=160, fov_rad=math.pi / 2, bin_ps=12
 
 def write_analytic_dataset(out_dir, mesh, sensor: SensorSpec, laser_directions, *, albedo=0.8, subpixel=1,
                            window_bins=None, photons_per_pixel=None, ambient_per_bin=0.0, seed=0,
-                           test_cameras=None, test_size=(32, 32), record_first_bounce=True, scene="synthetic"):
+                           test_cameras=None, test_size=(32, 32), record_first_bounce=True, scene="synthetic",
+                           window_start="strongest"):
     """Render `mesh` analytically and write a complete dataset; returns (path, render parts).
 
     photons_per_pixel: None for noise-free expected radiance, else Poisson counts
     scaled so the brightest two-bounce pixel expects that many photons.
+    window_start (with window_bins): 'strongest' keeps each pixel's window_bins bins holding the most counts;
+    'expected' centres them on the pixel's expected two-bounce path, shadowed pixels too (a time gate, as
+    the simulator's: a window chosen by its counts would pick a shadowed pixel's densest stray photons).
     """
     cubes, parts = render_two_bounce(mesh, sensor, laser_directions, albedo=albedo, subpixel=subpixel,
                                      return_parts=True)
@@ -101,7 +105,7 @@ def write_analytic_dataset(out_dir, mesh, sensor: SensorSpec, laser_directions, 
     spots = []
     with DatasetWriter(out_dir) as w:
         for k, (ld, sp) in enumerate(zip(laser_directions, parts["spots"])):
-            tr = Transient.from_dense(cubes[k], g)
+            tr = Transient.from_dense(cubes[k], g, _gate_starts(parts, sp, sensor, g) if window_start == "expected" else None)
             ld = np.asarray(ld, float) / np.linalg.norm(ld)
             fb = None if (sp.first_bounce is None or not record_first_bounce) else [float(v) for v in sp.first_bounce]
             spots.append(Spot(id=k, laser_direction=ld.tolist(), transient_file=w.write_transient(k, tr),
@@ -116,3 +120,16 @@ def write_analytic_dataset(out_dir, mesh, sensor: SensorSpec, laser_directions, 
                                              generator_version="1", seed=seed, scene=scene))
         path = w.commit(man)
     return path, parts
+
+
+def _gate_starts(parts, spot, sensor: SensorSpec, g: int):
+    """First bin (H, W) of a g-bin window centred on each pixel's expected two-bounce path (None: no first
+    bounce: the strongest windows); pixels seeing no surface get the first g bins."""
+    if spot.first_bounce is None:
+        return None
+    x, hit = parts["points"], parts["hit"]
+    o, c = np.asarray(sensor.laser_origin, float), np.asarray(sensor.camera_to_world, float)[:3, 3]
+    l = np.asarray(spot.first_bounce, float)
+    path = np.linalg.norm(l - o) + np.linalg.norm(x - l, axis=-1) + np.linalg.norm(x - c, axis=-1)
+    u = (path - sensor.start_m) / sensor.bin_width_m
+    return np.clip(np.floor(np.where(hit, u, 0.0) - 0.5 * g + 0.5), 0, sensor.bins - g).astype(np.int64)

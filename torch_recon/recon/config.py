@@ -140,7 +140,10 @@ class FastConfig:
                                       # earliest return (its middle); 'mean' also the mean of its 3 x 3
                                       # neighbours' at the same range; 'seen' only of those seen strongest
                                       # there; 'off' the earliest return. 'mean' with training 'frozen' is the
-                                      # default since session 10 (six scenes in docs/reconstruction.md)
+                                      # default since session 10 (six scenes in docs/reconstruction.md);
+                                      # 'coverage': the mean weighted by the part's share of each pixel (its
+                                      # background return's deficit; session 11: pole points 1.38 -> 0.82 cm from
+                                      # the axis, but the pole's column breaks in the mesh: opt-in)
     thin_part_raw: float = 4.0        # raw density those voxels start at (raw_occupied: 4; higher: the training
                                       # steps of the pixels that see past the part cannot empty it in 100 steps)
     thin_part_radius_voxels: float = 0.0  # > 0: a thin part starts as a tube this many voxels in radius round its points
@@ -251,8 +254,8 @@ class FitConfig:
         if self.platonerf.reinit_dead not in ("both", "coarse", "off"):
             raise SettingsError("platonerf.reinit_dead",
                                 f"expected 'both', 'coarse' or 'off', got {self.platonerf.reinit_dead!r}")
-        if self.fast.thin_part_centre not in ("off", "depth", "mean", "seen"):
-            raise SettingsError("fast.thin_part_centre", f"expected 'off', 'depth', 'mean' or 'seen', got "
+        if self.fast.thin_part_centre not in ("off", "depth", "mean", "seen", "coverage"):
+            raise SettingsError("fast.thin_part_centre", f"expected 'off', 'depth', 'mean', 'coverage' or 'seen', got "
                                                           f"{self.fast.thin_part_centre!r}")
         if self.fast.surface_concave_corners not in ("off", "planes", "all"):
             raise SettingsError("fast.surface_concave_corners", f"expected 'off', 'planes' or 'all', got "

@@ -32,6 +32,8 @@ class RayData:
     width: int
     nearest_depth: torch.Tensor | None = None  # (P,) range of the nearest surface any part of the pixel sees
                                                # (<= visible_depth: a thin part in front); None: unknown
+    amplitude: torch.Tensor | None = None  # (S, P) matched-filter peak of each spot's strongest return (NaN where
+                                           # not lit); None: unknown (recon/thin_parts.py part_coverage)
 
     @property
     def n_pairs(self) -> int:
@@ -91,7 +93,7 @@ def build_ray_data(meas: Measurements) -> RayData:
     dirs = meas.pixel_directions()
     c = np.asarray(meas.sensor_origin, np.float64)
     o = np.asarray(meas.laser_origin, np.float64)
-    pix, spt, path, lit, shd, ls = [], [], [], [], [], []
+    pix, spt, path, lit, shd, ls, amp = [], [], [], [], [], [], []
     for k, s in enumerate(meas.spots):
         l = np.asarray(s.first_bounce, np.float64)
         if l.shape != (3,) or not np.all(np.isfinite(l)):
@@ -110,6 +112,8 @@ def build_ray_data(meas: Measurements) -> RayData:
         path.append(np.where(sig[use], p[use], np.nan))
         lit.append(sig[use])
         shd.append(sh[use])
+        if s.amplitude is not None and np.shape(s.amplitude) == (h, w):
+            amp.append(np.where(sig, np.asarray(s.amplitude, np.float32).reshape(-1), np.nan))
     ls = np.stack(ls)
     if not any(l.any() for l in lit):
         # Without a single two-bounce return there is no distance to fit and no visible surface to
@@ -130,4 +134,5 @@ def build_ray_data(meas: Measurements) -> RayData:
                    path=f32(np.concatenate(path)), lit=torch.as_tensor(np.concatenate(lit)),
                    shadowed=torch.as_tensor(np.concatenate(shd)), visible_depth=f32(vd), height=h, width=w,
                    nearest_depth=None if meas.nearest_depth is None else f32(np.fmin(
-                       np.asarray(meas.nearest_depth, np.float32).reshape(-1), vd)))
+                       np.asarray(meas.nearest_depth, np.float32).reshape(-1), vd)),
+                   amplitude=f32(np.stack(amp)) if len(amp) == len(meas.spots) else None)

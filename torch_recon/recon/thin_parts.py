@@ -23,6 +23,34 @@ def _shifted(t, dy, dx, fill):
 _AROUND = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
 
 
+def part_coverage(data: RayData, thin, voxel: float):
+    """(H, W) fraction of each `thin` pixel's footprint the part in front covers, NaN where unknown (and on the
+    other pixels): the rest of
+    the footprint sees the surface behind, so its strongest return is that much weaker than the return of a
+    neighbour seeing only that surface (an 8-neighbour not `thin`, whose strongest return lies within `voxel` of
+    the pixel's). 1 - the ratio of the strengths (matched-filter peaks), median over the spots lit at both: a
+    pole covering half a pixel halves the wall's return there (thin-structures: 0.52 of the wall beside it,
+    and 0.88 in the neighbour its edge grazes)."""
+    h, w = data.height, data.width
+    if data.amplitude is None:
+        return torch.full((h, w), float("nan"), device=thin.device)
+    a = data.amplitude.reshape(-1, h, w).permute(1, 2, 0)
+    d = torch.nan_to_num(data.visible_depth.reshape(h, w), nan=float("inf"))
+    pure = ~thin & torch.isfinite(d)
+    ref, n = torch.zeros_like(a), torch.zeros_like(a)
+    for dy, dx in _AROUND:
+        if dy == dx == 0:
+            continue
+        aq = _shifted(a, dy, dx, float("nan"))
+        ok = (_shifted(pure, dy, dx, False) & ((_shifted(d, dy, dx, float("inf")) - d).abs() < voxel))[..., None]
+        ok = ok & torch.isfinite(aq)
+        ref += torch.where(ok, aq, 0.0)
+        n += ok
+    ratio = a / (ref / n)                   # NaN where the pixel is not lit or no neighbour is a reference
+    cov = 1.0 - torch.nanmedian(ratio, -1).values.clamp(0.0, 1.0)
+    return torch.where(thin, cov, torch.full_like(cov, float("nan")))
+
+
 def thin_part_points(data: RayData, voxel: float, samples: int = 4, edges: bool = True, centre: str = "off"):
     """World points of parts thinner than a pixel, chunk by chunk: the nearest surface of each pixel whose
     strongest return lies more than `voxel` behind it (`nearest_depth`), and the segments joining it to the
@@ -37,34 +65,48 @@ def thin_part_points(data: RayData, voxel: float, samples: int = 4, edges: bool 
     `centre` 'depth' or 'mean': a point lies a quarter of the pixel's footprint behind the earliest return (the
     part's expected half width: the earliest return comes from its front, the voxel should hold its middle);
     'mean': and it is the mean of the 3 x 3 pixels' points at the same range (a 2 cm leg seen in two pixels
-    side by side lies between their centres, 3.7 cm apart, not at both); 'seen': the mean of its own and those
+    side by side lies between their centres, 3.7 cm apart, not at both); 'coverage': that mean weighted by how
+    much of each pixel the part covers (`part_coverage`; 1 where unknown, and for a neighbour seeing the part
+    strongest): the pixel a pole's edge grazes pulls its point less than the one the pole half fills; 'seen': the mean of its own and those
     of the neighbours that see that surface strongest (pulled onto a leg or a backrest the visible surface
     holds; parts nobody sees strongest keep their width); 'off': the earliest return itself."""
     h, w = data.height, data.width
     d = data.visible_depth.reshape(h, w)
     r = torch.fmin(data.nearest_depth.reshape(h, w), d)
-    thin = torch.isfinite(d) & (r < d - voxel)
+    thin = front = torch.isfinite(d) & (r < d - voxel)
     inf = float("inf")
+    dn = torch.nan_to_num(d, nan=inf)
+    broad = torch.stack([(_shifted(dn, dy, dx, inf) - dn).abs() < voxel for dy, dx in _AROUND]).sum(0) >= 6
     if not edges:
-        dn = torch.nan_to_num(d, nan=inf)
-        broad = torch.stack([(_shifted(dn, dy, dx, inf) - dn).abs() < voxel for dy, dx in _AROUND]).sum(0) >= 6
         beside = torch.stack([((_shifted(dn, dy, dx, inf) - r).abs() < voxel) & _shifted(broad, dy, dx, False)
                               for dy, dx in _AROUND]).any(0)
-        thin &= ~beside
+        thin = thin & ~beside
+    if centre == "coverage":
+        # a pixel seeing the part strongest where its neighbours see it only in front of the surface behind (no
+        # broad surface of its own): the part's own pixel, a point of it too (its visible-surface ramp alone
+        # erodes in training, and a pole breaks at those heights)
+        rn = torch.nan_to_num(r, nan=inf)
+        seen = torch.stack([_shifted(front, dy, dx, False) & ((_shifted(rn, dy, dx, inf) - dn).abs() < voxel)
+                            for dy, dx in _AROUND]).any(0)
+        thin = thin | (torch.isfinite(d) & ~front & ~broad & seen)
     back = 0.25 * (pixel_angle(data, at_centre=True) or 0.0) * r if centre != "off" else torch.zeros_like(r)
     x = data.sensor_origin + data.pixel_dirs.reshape(h, w, 3) * (r + back)[..., None]
-    if centre in ("mean", "seen"):
+    if centre in ("mean", "seen", "coverage"):
         rn = torch.nan_to_num(r, nan=inf)
         # 'seen': only the pixel itself and neighbours that see the part strongest pull it
         rs = torch.where(rn < torch.nan_to_num(d, nan=inf) - voxel, torch.full_like(rn, inf), rn) \
             if centre == "seen" else rn
+        weight = torch.ones_like(r)
+        if centre == "coverage":
+            weight = torch.where(thin, torch.nan_to_num(part_coverage(data, front, voxel), nan=1.0), weight)
+            weight = weight.clamp_min(0.02)
         wsum, xsum = torch.zeros_like(r), torch.zeros_like(x)
         for dy, dx in _AROUND:
-            wk = (_shifted(rs, dy, dx, inf) - rn).abs() < voxel
-            wk |= (dy == 0) & (dx == 0)
+            wk = ((_shifted(rs, dy, dx, inf) - rn).abs() < voxel) | ((dy == 0) & (dx == 0))
+            wk = wk * _shifted(weight, dy, dx, 0.0)
             wsum += wk
             xsum += wk[..., None] * _shifted(torch.nan_to_num(x), dy, dx, 0.0)
-        x = torch.where(thin[..., None], xsum / wsum.clamp_min(1)[..., None], x)
+        x = torch.where(thin[..., None], xsum / wsum.clamp_min(1e-6)[..., None], x)
     r = r + back
     yield x[thin]
     s = torch.linspace(0.0, 1.0, samples + 2, device=d.device)[1:-1]
