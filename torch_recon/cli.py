@@ -19,6 +19,7 @@ COMMAND_MODULES = (
     "torch_recon.commands.baseline",
     "torch_recon.commands.fit",
     "torch_recon.commands.evaluate",
+    "torch_recon.commands.advise_spots",
     "torch_recon.commands.convert",
     "torch_recon.commands.batch",
 )

@@ -198,6 +198,14 @@ def _pixel_stride(data: RayData, voxel: float, spacing_voxels: float = 1.0) -> i
     return 1 if footprint is None else max(1, int(spacing_voxels * voxel / footprint))
 
 
+def _carving_pixel_mask(data: RayData, box: GridBox, spacing_voxels: float) -> torch.Tensor:
+    """Pixels (bool (H W,)) whose rays carve (`_pixel_stride` in rows and columns)."""
+    stride = _pixel_stride(data, box.voxel, spacing_voxels)
+    m = torch.zeros(data.height, data.width, dtype=torch.bool, device=data.pixel_dirs.device)
+    m[::stride, ::stride] = True
+    return m.reshape(-1)
+
+
 def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.0, carve_min_lit: int = 1,
                   secondary_offset_m: float = 0.0, step_voxels: float = 0.5, carve_core: float = 0.5,
                   count_shadow: bool = False, carve_spacing_voxels: float = 1.0, explain_shadow_rays: bool = False,
@@ -267,6 +275,36 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
         else:
             explain_shadows(box, label, lit_count, shadow_count, *seg, step, score=score, lead=lead)
     return label.reshape(box.shape), shadow_count.reshape(box.shape)
+
+
+def _hull_prior(data: RayData, box: GridBox, cfg, label, free, view, sd, shell, off):
+    """Free space and the hull voxels a scene-independent prior empties (`fast.hull_opening_voxels`: thinner
+    than a ball; `fast.hull_closure`: outside the convex hull of the voxels a shadow's edge or a measured surface
+    places, per connected part), every measured shadow staying blocked (hull_trim.py)."""
+    from .hull_trim import keep_blocked, opening, outside_convex_closure, sole_blockers
+    solid = ~free
+    band = torch.isfinite(sd) if sd is not None else _dilate_cube((label == 1).float(), 2) > 0
+    removable = (label == 0) & solid & ~band & (shell < -0.5 * box.voxel)
+    removable = removable if view is None else removable & view
+    on_sub = _carving_pixel_mask(data, box, cfg.carve_spacing_voxels)
+    segs = _segments(data, data.shadowed & on_sub[data.pair_pixel], off)
+    step = cfg.step_voxels * box.voxel
+    removed = torch.zeros_like(solid)
+    if cfg.hull_opening_voxels > 0:
+        removed |= removable & ~opening(solid, cfg.hull_opening_voxels)
+    if cfg.hull_closure == "convex":
+        parts = solid & (shell < -1.5 * box.voxel)    # not the floor or a wall under an object
+        parts = parts if view is None else parts & view
+        placed = (label == 1) | (label == RESTORED) | (label == NEAREST)     # a measured surface or blocker
+        anchors = (parts & placed) | (sole_blockers(box, solid.reshape(-1), segs, step,
+                                                        min_segments=cfg.hull_closure_min_segments,
+                                                        max_samples=cfg.hull_closure_graze_samples).reshape(solid.shape)
+                                          & parts)
+        outside = removable & outside_convex_closure(parts, anchors, cfg.hull_closure_margin_voxels)
+        # ... and the layer of hull between it and the floor or wall it stood on (parts leave that layer out)
+        removed |= outside | (removable & ~parts & (_dilate_cube(outside.float(), 1) > 0))
+    removed = keep_blocked(box, solid, removed, segs, step) if bool(removed.any()) else removed
+    return free | removed, removed
 
 
 def fov_xy(width: int, height: int, fov_rad: float, fov_axis: str):
@@ -359,6 +397,9 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
         excess = unneeded_beside_view(data, box, free, ~free & view, beyond, off, cfg.step_voxels * box.voxel,
                                       cfg.trim_hull_voxels)
         free, trimmed = free | excess, excess if trimmed is None else trimmed | excess
+    if (cfg.hull_opening_voxels > 0 or cfg.hull_closure != "off") and shell is not None:
+        free, thin = _hull_prior(data, box, cfg, label, free, view, sd, shell, off)     # hull_trim.py
+        trimmed = thin if trimmed is None else trimmed | thin
     occupied = ~free if view is None else ~free & view
     raw = torch.where(occupied, torch.tensor(cfg.raw_occupied, device=dev), torch.tensor(cfg.raw_free, device=dev))
     b = surface_offset(cfg.density_scale, box.voxel, max(cfg.surface_slope, 1e-3))

@@ -1,0 +1,88 @@
+"""The spot advisor (recon/spot_advice.py, `platolidar advise-spots`): spots whose light reaches the shadow hull
+that no lit segment of the capture crosses."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from support.recon_fixtures import BOX_HI, BOX_LO, CAMERA, SPOTS, box_floor_mesh  # noqa: E402
+from torch_recon.contract.errors import PlatolidarError  # noqa: E402
+from torch_recon.recon import FitConfig, fit  # noqa: E402
+from torch_recon.recon.spot_advice import AdviceSettings, advise_spots  # noqa: E402
+from torch_recon.recon.synthetic_measurements import ideal_measurements  # noqa: E402
+
+#: only the two spots on the left wall: the box's shadow hull to its right no lit segment crosses
+LEFT = SPOTS[SPOTS[:, 0] < 0]
+
+
+def _config():
+    cfg = FitConfig(progress=False, steps=0, threads=1, plateau_patience=0)
+    cfg.fast.resolution = 40
+    cfg.fast.coarse_resolution = 20
+    cfg.fast.coarse_fraction = 0.0
+    return cfg
+
+
+def _measure(targets):
+    return ideal_measurements(box_floor_mesh(), CAMERA, 32, 32, targets, fov_rad=np.deg2rad(70.0))
+
+
+def _excess_hull_right(out_dir) -> int:
+    """Occupied voxels of a fit right of the box and above the floor, outside the box: truly empty space."""
+    with np.load(out_dir / "volume.npz") as z:
+        vol, lo, hi = z["opacity"], z["bbox_min"], z["bbox_max"]
+    v = (hi - lo) / np.array(vol.shape)
+    x, y, zc = np.meshgrid(*[lo[a] + (np.arange(vol.shape[a]) + 0.5) * v[a] for a in range(3)], indexing="ij")
+    region = (x > BOX_HI[0] + 2 * v[0]) & (x < 1.2) & (y > BOX_LO[1]) & (y < 3.1) & (zc > 2 * v[2]) & (zc < 0.45)
+    return int((region & (vol >= 0.5)).sum())
+
+
+@pytest.fixture(scope="module")
+def left_fit(tmp_path_factory):
+    meas = _measure(LEFT)
+    out = tmp_path_factory.mktemp("fit-left")
+    fit(meas, out=out, config=_config(), uv=False)
+    return meas, out
+
+
+def test_the_advised_spot_carves_the_hull_the_capture_left(left_fit, tmp_path):
+    meas, out = left_fit
+    advice = advise_spots(None, out, AdviceSettings(add=1, candidates=120, threads=1), measurements=meas)
+    assert advice.hull_voxels > 0 and len(advice.spots) == 1
+    spot = advice.spots[0]
+    assert spot.voxels > 0 and spot.gain > 0 and spot.pixel is not None
+    # the capture lights the scene from the left: the light that reaches the right of the box comes from the right
+    assert spot.point[0] > 0.0, spot.point
+    before = _excess_hull_right(out)
+    assert before >= 8          # the setting: the shadow hull does fill that space (10 voxels)
+    again = _measure(np.concatenate([LEFT, spot.point[None]]))
+    fit(again, out=tmp_path / "fit", config=_config(), uv=False)
+    assert _excess_hull_right(tmp_path / "fit") < 0.5 * before
+    # the --spot-list texts
+    assert advice.spot_list().count(";") == 0 and advice.spot_list(True).count(";") == len(LEFT)
+    json.dumps(advice.to_json())
+
+
+def test_bad_input_one_clear_error(left_fit, tmp_path):
+    meas, out = left_fit
+    with pytest.raises(PlatolidarError, match="volume.npz: no such file"):
+        advise_spots(None, tmp_path, AdviceSettings(), measurements=meas)
+    with pytest.raises(PlatolidarError, match="occupied_prior"):
+        advise_spots(None, out, AdviceSettings(occupied_prior=1.0), measurements=meas)
+    with pytest.raises(PlatolidarError, match="fitted to other data"):
+        advise_spots(None, out, AdviceSettings(), measurements=_measure(SPOTS))
+
+
+def test_cli_refuses_bad_input_with_one_line(left_fit, tmp_path, capsys):
+    from torch_recon.cli import main
+
+    _, out = left_fit
+    assert main(["advise-spots", str(tmp_path), str(out), "--add", "0"]) == 2
+    assert main(["advise-spots", str(tmp_path / "none"), str(tmp_path / "nofit")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and "add" in err[0] and "volume.npz" in err[1]

@@ -1,0 +1,379 @@
+"""Where to aim the next laser spots: a spot advisor from a first reconstruction (issue 11).
+
+Part of the hidden space is crossed by no lit secondary segment (spot -> visible lit point) of a capture:
+the fast fit keeps it as shadow hull (`init.evidence_grid` label 0), bounded by shadows only. A new spot l
+whose segments l -> x (x: a point the sensor sees) pass that space measures it: a lit segment carves every
+hull voxel it crosses, a shadowed one says a blocker lies along it. The advisor scores candidate spots by
+the hull voxels their segments would carve, under a simple model: each hull voxel is occupied with
+probability `occupied_prior`, independently, so a segment crossing n hull voxels (and no surface the fit
+is sure of) is lit with probability (1 - p)^n. A candidate's value for a hull voxel is the best such
+probability over its segments; the spots already in the capture hold their own values (what they
+measured), and N candidates are chosen greedily by the expected number of hull voxels they add
+(coverage: a candidate that repeats an existing spot's segments gains nothing).
+
+Candidates: spread-out points of the sensor-visible surface (`contract.spots.select_diverse_spots`, the
+one diversity rule) that the laser reaches; optionally laser directions beyond the sensor's view, which
+land on the fit's surface (a galvo scans wider than the camera sees; such spots are placed by
+preprocessing from their two-bounce returns, see docs/reconstruction.md "Laser spots outside the
+sensor's view").
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..contract.errors import PlatolidarError, SettingsError
+from ..contract.spots import pixel_directions, select_diverse_spots
+from .fields import GridBox
+from .init import _marching_cells, evidence_grid, in_view
+from .visible_surface_init import _dilate_cube, visible_surface
+
+#: voxel classes along a segment
+FREE, HULL, SOLID = 0, 1, 2
+#: hull voxels this close (voxels, cube) to a measured surface voxel count as that surface
+SURFACE_BAND_VOXELS = 2
+
+
+@dataclass
+class AdviceSettings:
+    """Settings of the spot advisor (`platolidar advise-spots`)."""
+
+    add: int = 4                      # spots to advise
+    candidates: int = 300             # spread-out candidate spots scored (on the sensor-visible surface)
+    occupied_prior: float = 0.25      # chance that one shadow-hull voxel is really occupied (the lit-segment model)
+    beyond_view_deg: float = 0.0      # also laser directions up to this far beyond the sensor's view (0: in view only)
+    pixel_stride: int = 2             # segments to every n-th pixel along each image axis
+    seed: int = 0                     # candidate choice (select_diverse_spots)
+    device: str = "cpu"               # torch device
+    threads: int | None = None        # CPU threads for torch
+
+    SETTINGS_META = {"add": {"range": (1, None)}, "candidates": {"range": (1, None)},
+                     "occupied_prior": {"range": (0.0, 1.0)}, "beyond_view_deg": {"range": (0.0, 60.0),
+                                                                                   "unit": "deg"},
+                     "pixel_stride": {"range": (1, None)}, "threads": {"range": (1, None)}}
+
+    def validate(self):
+        if not 0.0 < self.occupied_prior < 1.0:
+            raise SettingsError("occupied_prior", f"expected a probability in (0, 1), got {self.occupied_prior}")
+
+
+@dataclass
+class AdvisedSpot:
+    point: np.ndarray                 # (3,) world, m: where the laser lands (aim the laser here)
+    pixel: tuple | None               # (col, row) of the sensor pixel that sees it; None beyond the view
+    voxels: int                       # hull voxels its segments reach with no sure surface in the way
+    gain: float                       # expected hull voxels carved that no earlier spot reaches
+
+
+@dataclass
+class Advice:
+    spots: list                       # AdvisedSpot, in choice order
+    existing: np.ndarray              # (S, 3) the capture's spot points
+    hull_voxels: int                  # unbounded hull voxels of the fit (in the measured space, still occupied)
+    reached_by_existing: int          # of those, reached by an existing spot's segment
+    voxel_m: float
+    notes: list = field(default_factory=list)
+    details: dict = field(default_factory=dict, repr=False)   # the grid's arrays, for diagnostics
+
+    def spot_list(self, include_existing: bool = False) -> str:
+        """The simulator's --spot-list text 'x,y,z;...' (m)."""
+        pts = [*(self.existing if include_existing else []), *(s.point for s in self.spots)]
+        return ";".join(",".join(f"{v:.4f}" for v in p) for p in pts)
+
+    def to_json(self) -> dict:
+        return {"advised": [{"point": [round(float(v), 4) for v in s.point],
+                             "pixel": None if s.pixel is None else [int(s.pixel[0]), int(s.pixel[1])],
+                             "voxels_reached": s.voxels, "expected_voxels_carved": round(s.gain, 1)}
+                            for s in self.spots],
+                "existing": [[round(float(v), 4) for v in p] for p in self.existing],
+                "hull_voxels": self.hull_voxels, "hull_voxels_reached_by_existing": self.reached_by_existing,
+                "voxel_m": self.voxel_m, "spot_list": self.spot_list(),
+                "spot_list_with_existing": self.spot_list(True), "notes": self.notes}
+
+
+def load_fit_volume(fit_dir):
+    """(opacity (nx, ny, nz), bbox_min, bbox_max, level, fit settings dict) from a `fit --out` folder."""
+    root = Path(fit_dir)
+    vol_path, rep_path = root / "volume.npz", root / "fit.json"
+    for p in (vol_path, rep_path):
+        if not p.is_file():
+            raise PlatolidarError(f"{p}: no such file (expected the output folder of `platolidar fit --mode fast`)")
+    try:
+        with np.load(vol_path) as z:
+            opacity, lo, hi, level = z["opacity"], z["bbox_min"], z["bbox_max"], float(z["level"])
+        report = json.loads(rep_path.read_text())
+        settings = {**report["settings"], "source_hash": report.get("source_hash")}
+    except (KeyError, ValueError, OSError, json.JSONDecodeError) as exc:
+        raise PlatolidarError(f"{root}: unreadable fit output ({exc})") from None
+    if opacity.ndim != 3 or not np.all(np.isfinite(opacity)):
+        raise PlatolidarError(f"{vol_path}: opacity: expected a finite 3-D grid, got shape {opacity.shape}")
+    if settings.get("mode") != "fast":
+        raise PlatolidarError(f"{rep_path}: settings.mode is {settings.get('mode')!r}: the advisor needs a "
+                              f"`--mode fast` fit (its grid and shadow hull)")
+    return opacity, lo, hi, level, settings
+
+
+def voxel_classes(data, box: GridBox, opacity, level, fast: dict, meta: dict) -> torch.Tensor:
+    """Flat (x-major) class per voxel: HULL (shadow hull in the measured space, crossed by no lit segment,
+    still occupied after training, more than SURFACE_BAND_VOXELS from a measured surface), SOLID (every other
+    occupied voxel: measured surfaces, blockers, the completed planes) or FREE."""
+    label, _ = evidence_grid(data, box, fast["surface_margin_voxels"], fast["carve_min_lit"],
+                             fast["secondary_offset_voxels"] * box.voxel, fast["step_voxels"], fast["carve_core"],
+                             carve_spacing_voxels=fast["carve_spacing_voxels"],
+                             explain_shadow_rays=fast["explain_shadows"],
+                             explain_camera_free=fast["explain_camera_free"], explain_score=fast["explain_score"],
+                             nearest_free=fast["nearest_free"], nearest_surface=fast["nearest_surface"],
+                             thin_part_edges=fast["thin_part_edges"], thin_part_centre=fast["thin_part_centre"],
+                             explain_lead_voxels=fast["explain_lead_voxels"])
+    view = in_view(data, box, meta["camera_to_world"], meta["fov_rad"], meta["fov_axis"])
+    occupied = torch.as_tensor(opacity >= level, device=label.device)
+    cls = torch.full(box.shape, FREE, dtype=torch.int8, device=label.device)
+    cls[occupied] = SOLID
+    # hidden voxels next to a measured surface are the surface's own thickness (a wall seen at a grazing angle
+    # has voxels no pixel's point lands in): solid, not unbounded space
+    band = _dilate_cube((label == 1).float(), SURFACE_BAND_VOXELS) > 0
+    cls[occupied & (label == 0) & view & ~band] = HULL
+    return cls.reshape(-1)
+
+
+def _segment_values(box, cls, hull_index, n_hull, origins, ends, off, step, prior, device):
+    """Per hull voxel (compact index), the best lit probability (1 - prior)^n over the segments origins ->
+    ends that cross it with no SOLID voxel on the way (n: hull voxels crossed); and per segment whether it is
+    clear of SOLID voxels. The first and last `off` of each segment are skipped (its own surfaces)."""
+    v = ends - origins
+    length = torch.linalg.vector_norm(v, dim=-1)
+    good = length > 2 * off
+    o, d, length = origins[good], v[good] / length[good, None], length[good]
+    values = torch.zeros(n_hull, device=device)
+    if len(o) == 0:
+        return values
+    near = torch.full_like(length, off)
+    log_lit = math.log1p(-prior) * step / box.voxel     # per hull sample (step / voxel of a voxel)
+    for rays, flat, keep in _marching_cells(box, o, d, near, length - off, step):
+        c = cls[flat.where(keep, 0.0).long()]
+        hull = keep & (c == HULL)
+        clear = ~(keep & (c == SOLID)).any(1)
+        p = torch.exp(hull.sum(1).float() * log_lit) * clear
+        sel = hull & clear[:, None]
+        idx = hull_index[flat[sel].long()]
+        values.scatter_reduce_(0, idx, p[:, None].expand_as(sel)[sel], "amax")
+    return values
+
+
+def _laser_reaches(box, cls, laser, points, off, step):
+    """Whether the laser's ray from `laser` to each point (N, 3) crosses no occupied voxel before it."""
+    v = points - laser
+    length = torch.linalg.vector_norm(v, dim=-1).clamp(min=1e-9)
+    ok = torch.ones(len(points), dtype=torch.bool, device=points.device)
+    far = (length - off).clamp(min=0)
+    for rays, flat, keep in _marching_cells(box, laser.expand_as(points).contiguous(), v / length[:, None],
+                                            torch.zeros_like(length), far, step):
+        c = cls[flat.where(keep, 0.0).long()]
+        ok[rays] = ~(keep & (c != FREE)).any(1)
+    return ok
+
+
+def _landing_points(box, cls, laser, dirs, step):
+    """Where laser rays (unit dirs (N, 3)) first enter a SOLID voxel (NaN: a HULL voxel first, or none)."""
+    from .sampler import ray_box
+
+    org = laser.expand_as(dirs).contiguous()
+    near, far = ray_box(org, dirs, box.bbox_min, box.bbox_max)
+    near = near.clamp(min=0)
+    out = torch.full_like(dirs, float("nan"))
+    for rays, flat, keep in _marching_cells(box, org, dirs, near, far, step):
+        c = cls[flat.where(keep, 0.0).long()]
+        hit = keep & (c != FREE)
+        first = torch.where(hit.any(1), hit.float().argmax(1), torch.full_like(rays, -1))
+        solid = (first >= 0) & (c.gather(1, first.clamp(min=0)[:, None]).squeeze(1) == SOLID)
+        t = near[rays] + first.float() * step
+        pts = org[rays] + dirs[rays] * t[:, None]
+        out[rays[solid]] = pts[solid]
+    return out
+
+
+def spot_normals(box, opacity, spots, surface_points, surface_normals):
+    """Unit normals (N, 3) of the surfaces at spots (N, 3): the sensor-visible point's normal where one lies
+    within 1.5 voxels, else minus the fit's opacity gradient around the spot's voxel (zero where flat: no
+    facing test then). A Lambertian spot lights only the half-space in front of its surface."""
+    d, i = _nearest(surface_points, spots)
+    out = torch.where((d <= 1.5 * box.voxel)[:, None], surface_normals[i], torch.zeros_like(spots))
+    need = torch.nonzero(d > 1.5 * box.voxel).squeeze(1)
+    if len(need):
+        vol = torch.as_tensor(opacity, dtype=torch.float32, device=spots.device)
+        grad = torch.stack(torch.gradient(vol), -1)                  # (nx, ny, nz, 3), per voxel
+        pooled = torch.nn.functional.avg_pool3d(grad.permute(3, 0, 1, 2)[None], 3, 1, 1)[0].permute(1, 2, 3, 0)
+        idx, _ = box.cell_index(spots[need])
+        g = -pooled[idx[:, 0], idx[:, 1], idx[:, 2]]
+        out[need] = g / torch.linalg.vector_norm(g, dim=1, keepdim=True).clamp(min=1e-9)
+    return out
+
+
+def _nearest(points, queries, chunk: int = 256):
+    """Distance and index of the nearest of `points` (P, 3) to each of `queries` (Q, 3)."""
+    ds, ids = [], []
+    for q in torch.split(queries, chunk):
+        d, i = torch.cdist(q, points).min(1)
+        ds.append(d)
+        ids.append(i)
+    return torch.cat(ds), torch.cat(ids)
+
+
+#: two-bounce paths must end this far before the sensor's last bin (the pulse's width and the sub-pixel spread)
+PATH_MARGIN_M = 0.25
+
+
+def _path_range_end(dataset):
+    """The optical path (m) at the end of the dataset's last time bin; None without a dataset directory."""
+    if dataset is None or not Path(dataset).is_dir():
+        return None
+    from ..contract.dataset import load_dataset
+
+    sensor = load_dataset(dataset).manifest.sensor
+    return float(sensor.start_m + sensor.bins * sensor.bin_width_m)
+
+
+def _longest_lit_path(spots, spot_nrm, xs, ns, data):
+    """Per spot (N, 3), the longest two-bounce path |l - o| + |x - l| + |c - x| over the visible points x that
+    face it and that it faces (what the sensor must record)."""
+    to_cam = torch.linalg.vector_norm(xs - data.sensor_origin, dim=1)
+    out = []
+    for l, n in zip(spots, spot_nrm):
+        v = l - xs
+        facing = ((v * ns).sum(1) > 0) & ((v * n).sum(1) <= 0)
+        path = torch.linalg.vector_norm(l - data.laser_origin) + torch.linalg.vector_norm(v, dim=1) + to_cam
+        out.append(path[facing].max() if bool(facing.any()) else path.new_tensor(0.0))
+    return torch.stack(out)
+
+
+def beyond_view_directions(sensor, beyond_deg: float, n: int = 64):
+    """Laser directions (M, 3) outside the sensor's image and at most `beyond_deg` beyond its edge, on a
+    regular grid of image coordinates (the image's own projection, extended)."""
+    w, h = sensor.width, sensor.height
+    f = 0.5 * (w if sensor.fov_axis == "x" else h) / math.tan(0.5 * sensor.fov_rad)
+    half_x, half_y = math.atan(0.5 * w / f), math.atan(0.5 * h / f)
+    ext_x = f * math.tan(min(half_x + math.radians(beyond_deg), math.radians(85.0)))
+    ext_y = f * math.tan(min(half_y + math.radians(beyond_deg), math.radians(85.0)))
+    cols = 0.5 * w + np.linspace(-ext_x, ext_x, n)
+    rows = 0.5 * h + np.linspace(-ext_y, ext_y, n)
+    cc, rr = np.meshgrid(cols, rows)
+    outside = (cc < 0) | (cc >= w) | (rr < 0) | (rr >= h)
+    return pixel_directions(sensor, np.stack([cc[outside], rr[outside]], 1))
+
+
+def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measurements=None) -> Advice:
+    """Advise `settings.add` laser spots for `dataset` from its fast fit in `fit_dir` (see the module doc).
+    measurements: the dataset's `Measurements` when already preprocessed (else preprocessed here)."""
+    from types import SimpleNamespace
+
+    from ..device import resolve_device
+    from .api import load_source
+    from .data import build_ray_data
+
+    s = settings or AdviceSettings()
+    s.validate()
+    opacity, lo, hi, level, fit_settings = load_fit_volume(fit_dir)
+    dev = resolve_device(s.device, s.threads)
+    meas, src_hash = load_source(measurements if measurements is not None else dataset, progress=False, device=dev)
+    if fit_settings.get("source_hash") not in (None, src_hash):
+        raise PlatolidarError(f"{fit_dir}: fitted to other data than {dataset} (fit.json source_hash "
+                              f"{fit_settings['source_hash'][:24]}..., the data's {src_hash[:24]}...)")
+    data = build_ray_data(meas).to(dev)
+    if not bool(torch.isfinite(data.visible_depth).any()):
+        raise PlatolidarError(f"{dataset}: no visible depth: the advisor needs the surface the sensor sees")
+    fast = fit_settings["fast"]
+    shape = opacity.shape
+    voxel = float(np.max((np.asarray(hi) - np.asarray(lo)) / np.asarray(shape)))
+    box = GridBox.exact(lo, voxel, shape).to(dev)
+    meta = {"camera_to_world": np.asarray(meas.camera_to_world), "fov_rad": meas.fov_rad, "fov_axis": meas.fov_axis}
+    sensor = SimpleNamespace(width=meas.width, height=meas.height, fov_rad=meas.fov_rad, fov_axis=meas.fov_axis,
+                             camera_to_world=meta["camera_to_world"])
+    cls = voxel_classes(data, box, opacity, level, fast, meta)
+    hull_flat = torch.nonzero(cls == HULL).squeeze(1)
+    hull_index = torch.full((cls.numel(),), -1, dtype=torch.long, device=dev)
+    hull_index[hull_flat] = torch.arange(len(hull_flat), device=dev)
+    n_hull = len(hull_flat)
+    notes = [] if n_hull else ["the fit has no unbounded shadow hull in the measured space: no spot to advise"]
+    off = max(fit_settings["loss"]["secondary_offset_m"], fast["secondary_offset_voxels"] * box.voxel,
+              fast["surface_margin_voxels"] * box.voxel)
+    step = fast["step_voxels"] * box.voxel
+
+    # the segments' far ends: the sensor-visible points (every stride-th pixel) and their normals
+    h, w = meas.height, meas.width
+    pts_all, nrm_all = (torch.as_tensor(a, dtype=torch.float32, device=dev) for a in visible_surface(data, box))
+    valid = torch.isfinite(data.visible_depth).reshape(h, w)
+    pix = torch.nonzero(valid)                                  # (row, col) of each visible point, row-major
+    on_grid = (pix[:, 0] % s.pixel_stride == 0) & (pix[:, 1] % s.pixel_stride == 0)
+    xs, ns = pts_all[on_grid], nrm_all[on_grid]
+
+    def values_of(spot: torch.Tensor, normal: torch.Tensor) -> torch.Tensor:
+        # Lambertian both ways: x faces the spot and the spot's surface faces x
+        facing = (((spot - xs) * ns).sum(1) > 0) & (((xs - spot) * normal).sum(1) >= 0)
+        return _segment_values(box, cls, hull_index, n_hull, xs[facing], spot.expand_as(xs[facing]), off, step,
+                               s.occupied_prior, dev)
+
+    covered = torch.zeros(n_hull, device=dev)
+    for spot, normal in zip(data.spot_points, spot_normals(box, opacity, data.spot_points, pts_all, nrm_all)):
+        covered = torch.maximum(covered, values_of(spot, normal))
+
+    # candidates: spread-out visible points the laser reaches (+ laser directions beyond the view)
+    rng = np.random.default_rng(s.seed)
+    cand_pts, cand_pix = [], []
+    pick = select_diverse_spots(pts_all.cpu().numpy(), nrm_all.cpu().numpy(), s.candidates, rng)
+    p_in = pts_all[torch.as_tensor(pick, device=dev)]
+    if float(torch.linalg.vector_norm(data.laser_origin - data.sensor_origin)) > 1e-6:
+        reach = _laser_reaches(box, cls, data.laser_origin, p_in, off, step)
+        p_in, pick = p_in[reach], pick[reach.cpu().numpy()]
+    cand_pts.append(p_in)
+    cand_pix += [(int(pix[i, 1]), int(pix[i, 0])) for i in pick]
+    if s.beyond_view_deg > 0:
+        dirs = torch.as_tensor(beyond_view_directions(sensor, s.beyond_view_deg), dtype=torch.float32, device=dev)
+        land = _landing_points(box, cls, data.laser_origin, dirs, step)
+        land = land[torch.isfinite(land).all(1)]
+        if len(land):
+            keep = select_diverse_spots(land.cpu().numpy(), None, max(1, s.candidates // 2), rng)
+            cand_pts.append(land[torch.as_tensor(keep, device=dev)])
+            cand_pix += [None] * len(keep)
+        else:
+            notes.append(f"no laser direction within {s.beyond_view_deg} deg beyond the view lands on the fit's "
+                         f"surface")
+    cand = torch.cat(cand_pts)
+    cand_nrm = spot_normals(box, opacity, cand, pts_all, nrm_all)
+    end_m = _path_range_end(dataset) if measurements is None else None
+    if end_m is not None:       # the sensor must record every two-bounce return the spot causes
+        fits = _longest_lit_path(cand, cand_nrm, pts_all, nrm_all, data) < end_m - PATH_MARGIN_M
+        if not bool(fits.all()):
+            notes.append(f"{int((~fits).sum())} candidate(s) left out: their two-bounce paths would run past the "
+                         f"sensor's last bin ({end_m:.2f} m)")
+        cand, cand_nrm = cand[fits], cand_nrm[fits]
+        cand_pix = [p for p, ok in zip(cand_pix, fits.tolist()) if ok]
+    if len(cand) == 0:
+        raise PlatolidarError(f"{dataset}: no candidate spot: no visible surface point the laser reaches")
+    cand_values = torch.stack([values_of(p, n) for p, n in zip(cand, cand_nrm)])     # (C, n_hull)
+
+    by_existing = int((covered > 0).sum())
+    details = {"box": box, "hull_flat": hull_flat, "candidates": cand, "candidate_values": cand_values,
+               "existing_values": covered.clone()}
+    chosen, spots = [], []
+    for _ in range(min(s.add, len(cand))):
+        gain = (cand_values - covered).clamp(min=0).sum(1)
+        if chosen:
+            gain[torch.as_tensor(chosen, device=dev)] = -1.0
+        j = int(torch.argmax(gain))
+        if float(gain[j]) <= 0:
+            if n_hull:
+                notes.append(f"only {len(chosen)} spot(s) add anything: no other candidate reaches a hull voxel "
+                             f"they do not")
+            break
+        chosen.append(j)
+        covered = torch.maximum(covered, cand_values[j])
+        spots.append(AdvisedSpot(point=cand[j].cpu().double().numpy(), pixel=cand_pix[j],
+                                 voxels=int((cand_values[j] > 0).sum()), gain=float(gain[j])))
+    return Advice(spots=spots, existing=data.spot_points.cpu().double().numpy(), hull_voxels=n_hull,
+                  reached_by_existing=by_existing, voxel_m=box.voxel, notes=notes, details=details)
