@@ -63,6 +63,27 @@ def test_nearest_depth_is_the_thin_part_that_two_spots_see_not_one_stray_peak():
     assert one.nearest[0, 0] == pytest.approx(3.0, abs=1e-4)        # one spot's early peak is not enough
 
 
+def test_coarse_bins_scatter_of_the_spots_ranges_makes_no_nearer_surface():
+    """1024 ps bins: each spot's sub-bin path errs by a few cm, so its range does too; with no earlier
+    return in any spot the nearest surface is the depth itself (the second smallest of the scattered
+    ranges put a 'thin part' in front of every pixel: rings of spurious surface over the room)."""
+    m = _two_surface_measurements(early_spots=())
+    for k, s in enumerate(m.spots):
+        err = np.float32((-0.06, -0.03, 0.09)[k])     # cm of path: quantisation-sized errors
+        s.path_length = s.path_length + err
+        s.first_return_path = s.first_return_path + err
+    fused = fuse_visible_depth(m, inlier_m=0.3)
+    np.testing.assert_allclose(fused.nearest, fused.depth, atol=1e-6)
+    # and a part in front that two spots see is still found
+    m2 = _two_surface_measurements(early_spots=(0, 1))
+    for k, s in enumerate(m2.spots):
+        err = np.float32((-0.06, -0.03, 0.09)[k])
+        s.path_length, s.first_return_path = s.path_length + err, s.first_return_path + err
+    f2 = fuse_visible_depth(m2, inlier_m=0.3)
+    assert f2.nearest[0, 0] == pytest.approx(2.0, abs=0.08)      # the earlier peaks carry their own sub-bin error
+    assert f2.nearest[0, 1] == pytest.approx(f2.depth[0, 1], abs=1e-6)
+
+
 def test_nearest_depth_survives_a_save_and_load(tmp_path):
     m = _two_surface_measurements(early_spots=(0, 1))
     fused = fuse_visible_depth(m)

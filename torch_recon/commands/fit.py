@@ -42,6 +42,9 @@ def run(args) -> int:
         print(f"interrupted at step {t.steps_done}; checkpoint saved in {Path(args.out) / 'checkpoint.pt'} "
               f"(run the same command again to continue); earlier results left as they were", file=sys.stderr)
         return 130
+    if "grid_from_sensor" in r.metadata:
+        from ..recon.grid_size import describe
+        print(describe(r.metadata["grid_from_sensor"]))
     print(f"{r.mode}: {t.steps_done} steps ({t.stopped}), setup {r.setup_seconds:.1f} s, "
           f"training {t.train_seconds:.1f} s, total {r.total_seconds:.1f} s"
           + (f", resumed from step {t.resumed_from}" if t.resumed_from else "")

@@ -22,6 +22,7 @@ from ..device import resolve_device
 from ..measurements import Measurements
 from .config import FitConfig
 from .data import build_ray_data
+from .grid_size import sensor_grid
 from .models import build_model
 from .trainer import CHECKPOINT_NAME, TrainResult, train
 
@@ -112,19 +113,21 @@ def fit(source, mode: str | None = None, out=None, config: FitConfig | None = No
     dev = resolve_device(cfg.device, cfg.threads)
     meas, src_hash = load_source(source, cfg.progress, dev)   # the setup runs on the fit's device too
     data = build_ray_data(meas).to(dev)     # refuses unusable measurements before anything is written
+    cfg, grid_note = sensor_grid(data, cfg)  # no finer grid than the sensor's pixels resolve
     stage = None
     if out is not None:     # results are staged and swapped in whole; the checkpoint lives in the target
         from ..contract.dataset.staging import StagedDir
         stage = StagedDir(out, "fit", legacy=FIT_ENTRIES, marker=REPORT_NAME, keep=(CHECKPOINT_NAME,))
     try:
         return _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, export, fault_hook,
-                              stop_after, uv)
+                              stop_after, uv, grid_note)
     finally:
         if stage is not None:
             stage.discard()
 
 
-def _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, export, fault_hook, stop_after, uv):
+def _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, export, fault_hook, stop_after, uv,
+                   grid_note=None):
     out_dir = None
     if stage is not None:
         out_dir = stage.target
@@ -146,6 +149,8 @@ def _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, expo
                        "device": str(dev), "steps": tr.steps_done, "stopped": tr.stopped,
                        "setup_seconds": round(setup, 3), "train_seconds": round(tr.train_seconds, 3),
                        "nan_restores": tr.nan_restores, "resumed_from": tr.resumed_from}
+    if grid_note is not None:
+        result.metadata["grid_from_sensor"] = grid_note
     if hasattr(model, "reinit_steps"):
         result.metadata["reinitialised_after_steps"] = list(model.reinit_steps)
     if stage is not None and tr.stopped == "interrupted":

@@ -53,6 +53,12 @@ class FastConfig:
                                       # 160 (session 8, six scenes): object F@2cm +0.002..+0.057 but 1.1-3.3 x the
                                       # test-view holes (room junctions, already in the start), lamp shade's hidden
                                       # back lost (hidden R 0.815 -> 0.603); kept 128 (docs/reconstruction.md)
+    max_voxels_per_pixel: float = 2.2  # the grid is capped at this many voxels across a pixel's footprint at the far
+                                      # surfaces (recon/grid_size.py; the fit log says so): finer voxels lie between
+                                      # the pixels' rays, no measurement reaches them (32 px on the 128 grid: a
+                                      # lattice of blobs). Cave-chair 32 px (session 11): off L1 0.84 m / F@2cm 0.23,
+                                      # 2.2 (grid 65) 0.33 / 0.20, 1.5 (grid 45) 0.24 / 0.08; 64 px at 1.5 (grid 89)
+                                      # F@2cm 0.774 -> 0.732, spurious 3.0 -> 7.5 %: 2.2 leaves 64 and 128 px at 128; 0: off
     coarse_fraction: float = 0.0      # fraction of the steps on the coarse level (0: start fine; benchmark)
     bbox_margin_voxels: float = 1.5   # bbox = robust extent of the observed surfaces + this margin
     density_scale: float = 50.0       # sigma = density_scale * softplus(raw), in 1 / m
@@ -279,6 +285,9 @@ class FitConfig:
         if not 0.0 <= self.fast.thin_part_half_width_voxels <= 0.5:
             raise SettingsError("fast.thin_part_half_width_voxels", f"expected a value in [0, 0.5] (voxels; 0: off), "
                                                                     f"got {self.fast.thin_part_half_width_voxels}")
+        if not (math.isfinite(self.fast.max_voxels_per_pixel) and self.fast.max_voxels_per_pixel >= 0):
+            raise SettingsError("fast.max_voxels_per_pixel", f"expected voxels >= 0 (0: off), got "
+                                                             f"{self.fast.max_voxels_per_pixel}")
         if not self.fast.explain_lead_voxels >= 0:
             raise SettingsError("fast.explain_lead_voxels",
                                 f"expected voxels >= 0 (0: off), got {self.fast.explain_lead_voxels}")
