@@ -195,7 +195,7 @@ class Context:
         self.log("  $ " + " ".join(map(str, args)))
         return run_cli(args, timeout=timeout, check=check)
 
-    def dataset(self, example: str, resolution: int, spots: int = 16, **simulate_options) -> Path:
+    def dataset(self, example: str, resolution: int, spots: int | None = 16, **simulate_options) -> Path:
         """A simulated dataset of the example scene, cached under data_dir by a hash of the settings;
         a cached one is validated before reuse (datasets.cached_dataset)."""
         return datasets.cached_dataset(self, example, resolution, spots, simulate_options)

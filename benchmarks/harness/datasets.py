@@ -16,7 +16,8 @@ CACHE_STAMP = "bench_cache.json"
 def simulate_args(example: str, resolution: int, spots: int, options: dict) -> list[str]:
     """pipeline/simulate.py arguments: option names with '_' -> '-'; True -> a bare flag; False/None
     -> left out (the simulator's default)."""
-    args = ["--example", example, "--resolution", str(int(resolution)), "--spots", str(int(spots))]
+    args = ["--example", example, "--resolution", str(int(resolution))]
+    args += [] if spots is None else ["--spots", str(int(spots))]     # None: the spots come from --spot-list
     for key in sorted(options):
         value = options[key]
         flag = "--" + key.replace("_", "-")

@@ -68,7 +68,7 @@ def run(s: Settings, ctx) -> list:
         enabled, unused = scene_spots(default)
         kept = enabled[:s.keep]
         measure(scene, f"{len(enabled)} spots (scene default)", default)
-        first = ctx.dataset(scene, s.resolution, 16, spot_list=spot_list(kept))
+        first = ctx.dataset(scene, s.resolution, None, spot_list=spot_list(kept))
         measure(scene, f"{s.keep} spots", first)
         advice_json = ctx.work_dir / f"{scene}-advice.json"
         run_adv = ctx.run_cli([*runners.RECON, "advise-spots", first, ctx.work_dir / f"{scene}-{s.keep} spots",
@@ -77,10 +77,10 @@ def run(s: Settings, ctx) -> list:
         advised = [a["point"] for a in json.loads(advice_json.read_text())["advised"]]
         pick = select_diverse_spots(np.asarray(unused, np.float64), None, s.add, np.random.default_rng(s.seed))
         spread = [unused[i] for i in pick]
-        measure(scene, f"{s.keep} + {s.add} spread-out", ctx.dataset(scene, s.resolution, 16,
-                                                                    spot_list=spot_list(kept + spread)))
+        measure(scene, f"{s.keep} + {s.add} spread-out",
+                ctx.dataset(scene, s.resolution, None, spot_list=spot_list(kept + spread)))
         measure(scene, f"{s.keep} + {len(advised)} advised",
-                ctx.dataset(scene, s.resolution, 16, spot_list=spot_list(kept + advised)),
+                ctx.dataset(scene, s.resolution, None, spot_list=spot_list(kept + advised)),
                 advise_wall_s=run_adv.wall_s, advised=spot_list(advised))
     return rows
 

@@ -106,9 +106,10 @@ def test_dataset_cache_revalidates(tmp_path):
     args = simulate_args("cave-chair", 8, 4, {"poisson": True, "photons": 100, "no_gt": False})
     assert args == ["--example", "cave-chair", "--resolution", "8", "--spots", "4", "--photons", "100", "--poisson"]
     # a spot list starting with a negative coordinate stays one token (argparse would read '-1.2,...' as a flag)
-    assert simulate_args("cave-chair", 8, 4, {"spot_list": "-1.2,3,0;1,2,3"})[-1] == "--spot-list=-1.2,3,0;1,2,3"
+    assert simulate_args("cave-chair", 8, None, {"spot_list": "-1.2,3,0;1,2,3"}) == [
+        "--example", "cave-chair", "--resolution", "8", "--spot-list=-1.2,3,0;1,2,3"]   # spots: from the list
     from pipeline.simulate import build_parser
-    assert build_parser().parse_args([*simulate_args("cave-chair", 8, 4, {"spot_list": "-1.2,3,0"}),
+    assert build_parser().parse_args([*simulate_args("cave-chair", 8, None, {"spot_list": "-1.2,3,0"}),
                                       "--out", "x"]).spot_list == "-1.2,3,0"
     out = tmp_path / "ds"
     assert cache_problem(out, args) == "not cached"
