@@ -40,3 +40,18 @@ def box_floor_measurements(size=32):
     from torch_recon.recon.synthetic_measurements import ideal_measurements
 
     return ideal_measurements(box_floor_mesh(), CAMERA, size, size, SPOTS, fov_rad=np.deg2rad(70.0))
+
+
+#: the sensor of the post-before-a-wall scenes: at y = -1, looking along +y at a wall at y = 1 (x, z in [0, 1])
+POST_SENSOR = np.array([0.5, -1.0, 0.5])
+
+
+def wall_pixel_rays(n_pix: int):
+    """Pixel centres (gx, gz: (n, n) in [0, 1]), their points on the wall y = 1 (n*n, 3), unit ray directions
+    from POST_SENSOR and the wall's range along each: the shared set-up of the thin-post tests."""
+    u = (np.arange(n_pix) + 0.5) / n_pix
+    gx, gz = np.meshgrid(u, u, indexing="xy")
+    wall = np.stack([gx.reshape(-1), np.ones(n_pix * n_pix), gz.reshape(-1)], 1)
+    dirs = wall - POST_SENSOR
+    depth = np.linalg.norm(dirs, axis=1)
+    return gx, gz, wall, dirs / depth[:, None], depth

@@ -8,6 +8,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from tests.support.recon_fixtures import POST_SENSOR, wall_pixel_rays  # noqa: E402
 from torch_recon.recon.data import RayData  # noqa: E402
 from torch_recon.recon.fields import GridBox  # noqa: E402
 from torch_recon.recon.hull_trim import unneeded_hull  # noqa: E402
@@ -122,13 +123,8 @@ def _post_before_a_wall(n_pix=24, with_nearest=True, post_xy=WALL_POST_XY, front
     rows 3.1 cm apart) that the strongest return of every pixel misses. With `with_nearest`, each pixel
     whose footprint (half a pixel either side) overlaps the post has its nearest depth there (its earliest
     return). Four spots in front (y = 0); a pair is shadowed when its segment hits the post."""
-    c = np.array([0.5, -1.0, 0.5])
-    u = (np.arange(n_pix) + 0.5) / n_pix
-    gx, gz = np.meshgrid(u, u, indexing="xy")
-    x = np.stack([gx.reshape(-1), np.ones(n_pix * n_pix), gz.reshape(-1)], 1)
-    dirs = x - c
-    depth = np.linalg.norm(dirs, axis=1)
-    dirs /= depth[:, None]
+    c = POST_SENSOR
+    _, _, x, dirs, depth = wall_pixel_rays(n_pix)
     nearest = depth.copy()
     if with_nearest:
         t = (post_xy[1] - c[1]) / dirs[:, 1]           # range where the ray crosses the post's plane

@@ -9,6 +9,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from tests.support.recon_fixtures import POST_SENSOR, wall_pixel_rays  # noqa: E402
 from torch_recon.recon.data import RayData  # noqa: E402
 from torch_recon.recon.thin_parts import part_coverage, thin_part_points  # noqa: E402
 
@@ -21,13 +22,9 @@ def _post_covering(phase: float):
     centre. Per pixel the post covers the fraction `cov` of the footprint (a box of one pixel): the earliest return
     is the post's where cov > 0; the strongest is the post's where cov > 0.5 (else the wall's, that much weaker:
     amplitude (1 - cov) x a smooth shading, 4 spots)."""
-    c = np.array([0.5, -1.0, 0.5])
+    c = POST_SENSOR
+    gx, gz, _, dirs, depth = wall_pixel_rays(N_PIX)
     u = (np.arange(N_PIX) + 0.5) / N_PIX
-    gx, gz = np.meshgrid(u, u, indexing="xy")
-    wall = np.stack([gx.reshape(-1), np.ones(N_PIX * N_PIX), gz.reshape(-1)], 1)
-    dirs = wall - c
-    depth = np.linalg.norm(dirs, axis=1)
-    dirs /= depth[:, None]
     t_post = (POST_Y - c[1]) / dirs[:, 1]
     at = c + dirs * t_post[:, None]
     foot = (1.0 / N_PIX) * (POST_Y - c[1]) / (1.0 - c[1])          # a pixel's footprint at the post
