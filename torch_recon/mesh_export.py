@@ -67,7 +67,7 @@ def _as_numpy(volume) -> np.ndarray:
 
 def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: bool = True,
                      min_island_fraction: float = 0.01, free_space=None, smooth_iterations: int = 0,
-                     free_points=None):
+                     free_points=None, keep_near=None):
     """Marching cubes + small-island removal -> (trimesh.Trimesh in world frame, islands removed).
 
     free_space: optional bool volume on the same grid points, True where the measurements say the
@@ -77,6 +77,9 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
     pixel footprints, between voxel centres); a face is kept when either says its outward side is free.
     smooth_iterations: Taubin (lambda | mu) smoothing of the kept faces, which removes marching-cubes
     terracing without shrinking the volume; the rims of pin-holes (`PIN_GAP_EDGES`) stay in place.
+    keep_near: optional (points (N, 3), radius_m): a small island with a vertex within radius of one of these
+    points is kept (measured thin parts: a one-voxel pole stepping diagonally between voxels falls apart into
+    pieces below the island size, which are not specks).
     Faces of zero area are removed and coincident vertices merged in every case.
     """
     import trimesh
@@ -116,6 +119,13 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
         label = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(mesh.faces))
         size = np.bincount(label)
         small = size < min_island_fraction * size.max()
+        if keep_near is not None and len(keep_near[0]) and small.any():
+            from scipy.spatial import cKDTree
+            near = np.isfinite(cKDTree(np.asarray(keep_near[0], np.float64)).query(
+                mesh.vertices, distance_upper_bound=float(keep_near[1]))[0])
+            touched = np.zeros(len(size), bool)
+            touched[label[near[mesh.faces].any(1)]] = True
+            small &= ~touched
         removed = int(small.sum())
         if removed:
             mesh.update_faces(~small[label])
@@ -289,7 +299,7 @@ def sidecar_path(out_path) -> Path:
 
 def export_mesh(volume, bbox_min, bbox_max, level, out_path, metadata=None, *, extra_formats=(), uv=True,
                 close_boundary=True, min_island_fraction=0.01, max_uv_faces=1_000_000, free_space=None,
-                smooth_iterations: int = 0, free_points=None) -> ExportResult:
+                smooth_iterations: int = 0, free_points=None, keep_near=None) -> ExportResult:
     """Volume -> mesh file(s) in the Blender world frame + `<stem>.mesh.json` with metadata.
 
     metadata: JSON-able dict from the caller (method, settings, run time, dataset hash, ...);
@@ -309,7 +319,7 @@ def export_mesh(volume, bbox_min, bbox_max, level, out_path, metadata=None, *, e
         raise MeshExportError(f"metadata must be JSON-serialisable: {exc}") from None
     mesh, removed = mesh_from_volume(volume, bbox_min, bbox_max, level, close_boundary, min_island_fraction,
                                      free_space=free_space, smooth_iterations=smooth_iterations,
-                                     free_points=free_points)
+                                     free_points=free_points, keep_near=keep_near)
     uv_done = False
     if uv and len(mesh.faces) <= max_uv_faces:
         mesh = uv_unwrap(mesh)

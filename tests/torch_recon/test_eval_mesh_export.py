@@ -168,3 +168,24 @@ def test_smoothing_does_not_widen_pin_holes():
         assert area(smooth_iterations=10) < raw - 1e-3                # unpinned, its rim pulls back
     finally:
         me.PIN_GAP_EDGES = pin
+
+
+def test_islands_at_measured_thin_parts_survive_the_cleanup():
+    """A one-voxel pole that steps diagonally between voxels falls apart into pieces smaller than the island
+    size; the pieces touching a measured thin part's voxel are kept, a speck elsewhere still goes."""
+    from torch_recon.mesh_export import mesh_from_volume
+
+    n = 40
+    v = np.zeros((n, n, n), np.float32)
+    v[2:38, 2:38, 2:6] = 1.0                         # a large slab (the room)
+    for z in range(8, 30):                            # a pole stepping one voxel in x halfway up
+        v[20 + (z >= 19), 20, z] = 1.0
+    v[5, 30, 20] = 1.0                               # a speck
+    lo, hi = np.zeros(3), np.full(3, float(n - 1))     # grid points one unit apart
+    pole = np.array([[20 + (z >= 19), 20, z] for z in range(8, 30)], np.float64)
+    plain, removed = mesh_from_volume(v, lo, hi, 0.5, min_island_fraction=0.2)
+    kept, removed_kept = mesh_from_volume(v, lo, hi, 0.5, min_island_fraction=0.2, keep_near=(pole, 1.0))
+    near_pole = lambda m: int(((np.abs(m.vertices[:, 1] - 20) < 1.5) & (m.vertices[:, 2] > 7)).sum())  # noqa: E731
+    assert near_pole(plain) == 0 and removed >= 2                  # the pole and the speck went
+    assert near_pole(kept) > 0 and removed_kept >= 1               # the pole stays, the speck still goes
+    assert not (np.abs(kept.vertices - [5, 30, 20]).max(1) < 1.5).any()

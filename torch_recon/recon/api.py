@@ -171,7 +171,8 @@ def _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, expo
                                 else (vol, cfg.mesh_level))
                 files, result.mesh = export_volume(mvol, lo, hi, mlevel, staged / "mesh", result.metadata,
                                                    uv=uv, free_space=free, free_points=free_points,
-                                                   smooth_iterations=cfg.mesh_smooth_iterations)
+                                                   smooth_iterations=cfg.mesh_smooth_iterations,
+                                                   keep_near=_thin_part_centres(model))
                 result.mesh_files = {k: stage.final(v) for k, v in files.items()}
             except MeshExportError as exc:      # e.g. an early stop with nothing occupied yet
                 result.metadata["mesh_error"] = str(exc)
@@ -194,8 +195,19 @@ def voxel_centre_box(volume, bbox_min, bbox_max):
     return lo + half, hi - half
 
 
+def _thin_part_centres(model):
+    """(centres (N, 3), one voxel) of the fast model's thin-part voxels, for the mesh's island cleanup; None
+    without thin parts."""
+    tp = getattr(model, "thin_parts", None)
+    if tp is None:
+        return None
+    box = model.grid.box
+    mask = tp[0, 0].permute(2, 1, 0)                # stored (z, y, x) for grid_sample; the box is (x, y, z)
+    return box.centres()[mask.to(box.bbox_min.device)].cpu().double().numpy(), float(box.voxel)
+
+
 def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: dict, uv: bool = True,
-                  free_space=None, smooth_iterations: int = 0, free_points=None):
+                  free_space=None, smooth_iterations: int = 0, free_points=None, keep_near=None):
     """Marching cubes + cleanup + UVs -> .glb (+ .ply, .obj) through the shared mesh exporter.
 
     free_space (same shape as volume, bool): report only surfaces facing measured free space;
@@ -210,7 +222,7 @@ def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: d
     lo, hi = voxel_centre_box(volume, bbox_min, bbox_max)
     res = export_mesh(volume, lo, hi, level, Path(out_path).with_suffix(".glb"), metadata,
                       extra_formats=(".ply", ".obj"), uv=uv, free_space=free_space,
-                      smooth_iterations=smooth_iterations, free_points=free_points)
+                      smooth_iterations=smooth_iterations, free_points=free_points, keep_near=keep_near)
     files = {p.suffix.lstrip("."): p for p in res.paths}
     files["sidecar"] = res.sidecar
     return files, res.mesh

@@ -136,7 +136,7 @@ class FastConfig:
                                       # -> 0.885, curved-wall 0.864 -> 0.890, outside-fov 0.610 -> 0.620, the
                                       # other three within 0.002 (legs and pole whole). With centre 'mean' too:
                                       # cave-chair 0.917 but thin-structures 0.804 -> 0.784 (pole breaks)
-    thin_part_centre: str = "mean"    # ... a thin part's point: 'depth' a quarter pixel footprint behind the
+    thin_part_centre: str = "coverage"  # ... a thin part's point: 'depth' a quarter pixel footprint behind the
                                       # earliest return (its middle); 'mean' also the mean of its 3 x 3
                                       # neighbours' at the same range; 'seen' only of those seen strongest
                                       # there; 'off' the earliest return. 'mean' with training 'frozen' is the
