@@ -143,7 +143,8 @@ class FastConfig:
                                       # default since session 10 (six scenes in docs/reconstruction.md);
                                       # 'coverage': the mean weighted by the part's share of each pixel (its
                                       # background return's deficit; session 11: pole points 1.38 -> 0.82 cm from
-                                      # the axis, but the pole's column breaks in the mesh: opt-in)
+                                      # the axis) is the default since session 11, with the mesh's island cleanup
+                                      # keeping islands at thin parts (alone its pole broke: thin 0.783)
     thin_part_raw: float = 4.0        # raw density those voxels start at (raw_occupied: 4; higher: the training
                                       # steps of the pixels that see past the part cannot empty it in 100 steps)
     thin_part_radius_voxels: float = 0.0  # > 0: a thin part starts as a tube this many voxels in radius round its points
