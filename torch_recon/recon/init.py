@@ -317,6 +317,19 @@ def fov_xy(width: int, height: int, fov_rad: float, fov_axis: str):
 MIN_SPOTS_BEYOND_VIEW = 2
 
 
+def configured_evidence_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float, seen_free=None,
+                             count_shadow: bool = False):
+    """`evidence_grid` with a FastConfig's settings: the one place that maps the settings onto its arguments
+    (the start field and the spot advisor both label voxels this way)."""
+    return evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m,
+                         cfg.step_voxels, cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
+                         count_shadow=count_shadow, explain_shadow_rays=cfg.explain_shadows,
+                         explain_camera_free=cfg.explain_camera_free, explain_score=cfg.explain_score,
+                         nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface,
+                         seen_free=seen_free, thin_part_edges=cfg.thin_part_edges,
+                         thin_part_centre=cfg.thin_part_centre, explain_lead_voxels=cfg.explain_lead_voxels)
+
+
 def in_view(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_axis: str) -> torch.Tensor:
     """Voxels (nx, ny, nz) bool some measurement reaches: the centre projects into the sensor image (camera
     rays; and the secondary rays of spots inside the view, which stay in the convex view), or a secondary
@@ -359,14 +372,8 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     from .beyond_view import lit_side_of_hull, out_of_view_spots, unneeded_beside_view
     from .unobserved import bounding_planes, on_planes, shell_signed_distance
 
-    label, shadow_count = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m,
-                                        cfg.step_voxels, cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
-                                        count_shadow=cfg.trim_hull_voxels > 0, explain_shadow_rays=cfg.explain_shadows,
-                                        explain_camera_free=cfg.explain_camera_free, explain_score=cfg.explain_score,
-                                        nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface,
-                                        seen_free=seen_free, thin_part_edges=cfg.thin_part_edges,
-                                        thin_part_centre=cfg.thin_part_centre,
-                                        explain_lead_voxels=cfg.explain_lead_voxels)
+    label, shadow_count = configured_evidence_grid(data, box, cfg, secondary_offset_m, seen_free,
+                                                   count_shadow=cfg.trim_hull_voxels > 0)
     free = (label == 2) | (label == 3)
     dev = data.pixel_dirs.device
     surface = visible_surface(data, box) if surface is None else surface

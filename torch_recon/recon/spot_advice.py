@@ -31,7 +31,7 @@ import torch
 from ..contract.errors import PlatolidarError, SettingsError
 from ..contract.spots import pixel_directions, select_diverse_spots
 from .fields import GridBox
-from .init import _marching_cells, evidence_grid, in_view
+from .init import _marching_cells, configured_evidence_grid, in_view
 from .visible_surface_init import _dilate_cube, visible_surface
 
 #: voxel classes along a segment
@@ -123,14 +123,12 @@ def voxel_classes(data, box: GridBox, opacity, level, fast: dict, meta: dict) ->
     """Flat (x-major) class per voxel: HULL (shadow hull in the measured space, crossed by no lit segment,
     still occupied after training, more than SURFACE_BAND_VOXELS from a measured surface), SOLID (every other
     occupied voxel: measured surfaces, blockers, the completed planes) or FREE."""
-    label, _ = evidence_grid(data, box, fast["surface_margin_voxels"], fast["carve_min_lit"],
-                             fast["secondary_offset_voxels"] * box.voxel, fast["step_voxels"], fast["carve_core"],
-                             carve_spacing_voxels=fast["carve_spacing_voxels"],
-                             explain_shadow_rays=fast["explain_shadows"],
-                             explain_camera_free=fast["explain_camera_free"], explain_score=fast["explain_score"],
-                             nearest_free=fast["nearest_free"], nearest_surface=fast["nearest_surface"],
-                             thin_part_edges=fast["thin_part_edges"], thin_part_centre=fast["thin_part_centre"],
-                             explain_lead_voxels=fast["explain_lead_voxels"])
+    import dataclasses
+
+    from .config import FastConfig
+    known = {f.name for f in dataclasses.fields(FastConfig)}
+    cfg = FastConfig(**{k: v for k, v in fast.items() if k in known})
+    label, _ = configured_evidence_grid(data, box, cfg, cfg.secondary_offset_voxels * box.voxel)
     view = in_view(data, box, meta["camera_to_world"], meta["fov_rad"], meta["fov_axis"])
     occupied = torch.as_tensor(opacity >= level, device=label.device)
     cls = torch.full(box.shape, FREE, dtype=torch.int8, device=label.device)
