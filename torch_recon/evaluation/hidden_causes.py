@@ -97,6 +97,7 @@ def main(argv=None) -> int:
     import trimesh
 
     from ..contract.dataset import load_dataset
+    from ..mesh_export import load_mesh_world
     from .report import load_gt_objects
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("dataset")
@@ -106,10 +107,10 @@ def main(argv=None) -> int:
     ds = load_dataset(a.dataset)
     gt = trimesh.load(ds.path(ds.manifest.ground_truth.mesh_file), force="mesh", process=False)
     objects, _ = load_gt_objects(ds, gt)
-    load = (lambda p: trimesh.load(p, force="mesh", process=False))
     spots = [np.asarray(sp.first_bounce, np.float64) for sp in ds.manifest.enabled_spots if sp.first_bounce is not None]
-    res = hidden_miss_causes(gt, objects, ds.sensor, spots, load(a.mesh),
-                             load(a.truth_label_mesh) if a.truth_label_mesh else None)
+    # the fit's mesh in the world frame (a .glb is written Y-up)
+    res = hidden_miss_causes(gt, objects, ds.sensor, spots, load_mesh_world(a.mesh),
+                             load_mesh_world(a.truth_label_mesh) if a.truth_label_mesh else None)
     print(json.dumps(res, indent=1))
     return 0
 
