@@ -134,7 +134,7 @@ def _advise_box(box, context):
     row = box.row(align=True)
     row.prop(s, "advise_add")
     row.prop(s, "advise_beyond_view_deg")
-    if _job_row(box, "spot advice"):
+    if _job_row(box, "advice"):
         return
     has_fit = last_fit_dir(context) is not None
     row = box.row()

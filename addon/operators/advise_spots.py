@@ -83,7 +83,7 @@ class PLATOLIDAR_OT_advise_spots(NeedsLidarSettings, JobOperatorMixin, bpy.types
     bl_label = "Advise Spots"
     bl_options = {"REGISTER", "UNDO"}
 
-    job_kind = "spot advice"
+    job_kind = "advice"
 
     def build_job(self, context):
         s = context.scene.platolidar
@@ -94,11 +94,14 @@ class PLATOLIDAR_OT_advise_spots(NeedsLidarSettings, JobOperatorMixin, bpy.types
         dataset = dataset_dir(context, ": Advise Spots needs the dataset the fit was made from")
         python, paths = reconstruction_python(context)
         self._advice = os.path.join(fit_dir, ADVICE_FILE)
-        if os.path.isfile(self._advice):
-            os.remove(self._advice)  # an older advice must never be read as this run's
+        try:
+            if os.path.isfile(self._advice):
+                os.remove(self._advice)  # an older advice must never be read as this run's
+        except OSError as exc:
+            raise UserError(f"Cannot replace the earlier advice {self._advice}: {exc.strerror or exc}") from None
         cmd = jobs.advise_command(python, dataset, fit_dir, self._advice, s.advise_add, s.advise_beyond_view_deg,
                                   s.recon_device)
-        return jobs.Job("spot advice", cmd, env=jobs.python_env(paths))
+        return jobs.Job("advice", cmd, env=jobs.python_env(paths))
 
     def finish(self, context, job):
         advice = read_advice(self._advice)

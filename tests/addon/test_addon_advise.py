@@ -231,3 +231,18 @@ def test_operator_registered_under_the_prefix(blank):
 
     assert "platolidar.advise_spots" in [c.bl_idname for c in operators.classes]
     assert bpy.ops.platolidar.advise_spots.poll()
+
+
+def test_running_advice_shows_progress_and_the_cancel_button_stops_it(blank):
+    import sys
+
+    job = jobs.Job("advice", [sys.executable, "-c", "import time; time.sleep(60)"]).start()
+    jobs.set_active(job, "advice")
+    try:
+        log = draw_panel(panels.PLATOLIDAR_PT_spots)
+        assert ("op_prop", "platolidar.cancel_job", "kind") in log and ("operator", "platolidar.advise_spots") not in log
+        res, err = call(bpy.ops.platolidar.cancel_job, kind="advice")
+        assert err is None and res == {"FINISHED"} and job.cancelled
+    finally:
+        job.cancel(grace=1.0)
+        jobs.set_active(None, "advice")

@@ -76,7 +76,7 @@ def test_panel_and_headless_runs_give_the_same_dataset(room, tmp_path):
 @pytest.mark.slow
 def test_simulate_reconstruct_import_from_the_panel(room, tmp_path):
     """The whole chain from the sidebar: generate spots, simulate, reconstruct (this venv's Python
-    as the external interpreter), import with error colours."""
+    as the external interpreter), import with error colours, advise spots from the fast fit."""
     pytest.importorskip("torch_recon.commands.fit")
     s = room.platolidar
     s.width = s.height = 32
@@ -98,3 +98,9 @@ def test_simulate_reconstruct_import_from_the_panel(room, tmp_path):
     assert objs and all(len(o.data.vertices) > 0 for o in objs)
     co = np.concatenate([np.array([tuple(o.matrix_world @ v.co) for v in o.data.vertices]) for o in objs])
     assert np.all(co.min(0) > [-4.5, -5.5, -0.5]) and np.all(co.max(0) < [4.5, 3.5, 4.5])  # inside the room
+    # the real advisor on that fit: two more spots, marked, on the room's surfaces
+    s.advise_add = 2
+    res, err = call(bpy.ops.platolidar.advise_spots)
+    assert err is None, err
+    assert [sp.advised for sp in s.spots] == [False] * 8 + [True, True]
+    assert (tmp_path / "recon" / "advice.json").is_file()
