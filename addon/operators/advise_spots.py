@@ -87,6 +87,8 @@ class PLATOLIDAR_OT_advise_spots(NeedsLidarSettings, JobOperatorMixin, bpy.types
 
     def build_job(self, context):
         s = context.scene.platolidar
+        if jobs.active("reconstruction") is not None:  # it rewrites the fit the advisor would read
+            raise UserError("A reconstruction is running: advise spots once it has finished")
         fit_dir = resolve_path(s.recon_out_dir, "reconstruction output folder", context)
         problem = fit_problem(fit_dir)
         if problem:

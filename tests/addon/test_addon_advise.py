@@ -146,6 +146,12 @@ def test_missing_or_wrong_fit_is_one_line(advised_room, tmp_path):
     s.recon_out_dir = str(_fast_fit(tmp_path / "nerf", mode="platonerf"))
     expect_error(bpy.ops.platolidar.advise_spots, "mode 'platonerf'")
     s.recon_out_dir = str(tmp_path / "fit")
+    running = jobs.Job("reconstruction", ["true"])  # a fit being rewritten is not read
+    jobs.set_active(running, "reconstruction")
+    try:
+        expect_error(bpy.ops.platolidar.advise_spots, "reconstruction is running")
+    finally:
+        jobs.set_active(None, "reconstruction")
     s.recon_dataset_dir, s.output_dir = str(tmp_path / "no-dataset"), ""
     expect_error(bpy.ops.platolidar.advise_spots, "not a dataset")
     assert _names(advised_room) == ["Spot 01"]
