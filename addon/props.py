@@ -47,6 +47,10 @@ def _is_camera(self, obj):
     return obj.type == "CAMERA"
 
 
+#: name of the spots Advise Spots adds ('Advised 01', ...): settings files keep names, so the mark survives them
+ADVISED_PREFIX = "Advised"
+
+
 class PLATOLIDAR_PG_spot(bpy.types.PropertyGroup):
     # `name` is PropertyGroup's built-in name property (shown and renamed in the list)
     enabled: BoolProperty(name="Enabled", default=True, description="Simulate this spot", update=_redraw_views)

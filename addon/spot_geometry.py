@@ -9,6 +9,7 @@ from __future__ import annotations
 from mathutils import Vector
 
 from .config_io import lidar_camera  # puts the project modules on sys.path (addon/_project.py)
+from .props import ADVISED_PREFIX
 
 from pipeline import blender_scene as bs  # noqa: E402
 from torch_recon.contract.dataset import SensorSpec  # noqa: E402
@@ -58,13 +59,13 @@ def aim_laser(scene, depsgraph, toward) -> Vector | None:
 
 def add_spot(scene, target, name: str = "", advised: bool = False):
     """Append a spot aimed at the world point `target` and make it active; `advised`: from Advise Spots
-    (named 'Advised NN', so the mark also survives in the exported settings, which keep names)."""
+    (named 'Advised NN', see props.ADVISED_PREFIX)."""
     s = scene.platolidar
     sp = s.spots.add()
     sp.target = tuple(target)
     sp.enabled = True
     sp.advised = advised
-    sp.name = name or _unique_name(s.spots, "Advised" if advised else "Spot")
+    sp.name = name or _unique_name(s.spots, ADVISED_PREFIX if advised else "Spot")
     s.active_spot_index = len(s.spots) - 1
     return sp
 

@@ -83,6 +83,12 @@ def test_advised_points_become_marked_spots(advised_room, tmp_path):
     spots = json.loads((tmp_path / "settings.json").read_text())["spots"]
     assert [sp["name"] for sp in spots] == ["Spot 01", "Advised 01", "Advised 02"]
     assert spots[2]["target"] == pytest.approx(WALL, abs=1e-4)
+    # and the mark comes back with the names when those settings are loaded
+    s.spots.clear()
+    res, err = call(bpy.ops.platolidar.load_config, filepath=str(tmp_path / "settings.json"))
+    assert err is None, err
+    assert [(sp.name, sp.advised) for sp in s.spots] == [("Spot 01", False), ("Advised 01", True),
+                                                         ("Advised 02", True)]
 
 
 def test_the_spot_goes_where_the_laser_aimed_at_the_advised_point_lands(advised_room, monkeypatch):
