@@ -21,6 +21,8 @@ from pipeline.config import CONFIG_TEXT_NAME, ConfigError, SimulationConfig, Spo
 from torch_recon.contract.errors import PlatolidarError  # noqa: E402,F401 - the operators catch this base
 from torch_recon.contract.units import ps_to_m  # noqa: E402
 
+from .props import ADVISED_PREFIX  # noqa: E402
+
 SOURCE = "Lidar panel"
 
 # Settings copied one to one between the PropertyGroup and SimulationConfig (those this config version has)
@@ -102,6 +104,7 @@ def config_to_settings(cfg: SimulationConfig, scene) -> None:
     for i, sc in enumerate(cfg.spots):
         sp = s.spots.add()
         sp.name, sp.enabled, sp.target = sc.name or f"Spot {i + 1:02d}", sc.enabled, sc.target
+        sp.advised = sp.name.startswith(ADVISED_PREFIX + " ")
     s.active_spot_index = 0
 
 

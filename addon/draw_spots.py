@@ -11,21 +11,24 @@ from mathutils import Vector
 
 from .spot_geometry import SpotError, laser_origin
 
-COLOURS = {"active": (1.0, 0.85, 0.1, 1.0), "enabled": (1.0, 0.15, 0.1, 0.9), "disabled": (0.55, 0.55, 0.55, 0.5)}
+COLOURS = {"active": (1.0, 0.85, 0.1, 1.0), "enabled": (1.0, 0.15, 0.1, 0.9), "advised": (0.1, 0.75, 1.0, 0.9),
+           "disabled": (0.55, 0.55, 0.55, 0.5)}
 CROSS_FRACTION = 0.015  # cross half-size as a fraction of the ray length: visible at any scene scale
 
 _handle = None
 
 
 def ray_segments(scene) -> dict[str, list[tuple]]:
-    """Line-segment vertex lists (pairs) per style: 'active', 'enabled', 'disabled'."""
+    """Line-segment vertex lists (pairs) per style: 'active', 'enabled', 'advised' (enabled, from Advise Spots),
+    'disabled'."""
     s = scene.platolidar
     out = {k: [] for k in COLOURS}
     if not len(s.spots):
         return out
     origin = laser_origin(scene)
     for i, sp in enumerate(s.spots):
-        style = "active" if i == s.active_spot_index else ("enabled" if sp.enabled else "disabled")
+        style = "active" if i == s.active_spot_index else (
+            "disabled" if not sp.enabled else "advised" if sp.advised else "enabled")
         t = Vector(sp.target)
         r = max(1e-3, CROSS_FRACTION * (t - origin).length)
         segs = [origin, t]
@@ -53,7 +56,7 @@ def _draw():
     shader.uniform_float("lineWidth", 2.0)
     gpu.state.blend_set("ALPHA")
     gpu.state.depth_test_set("LESS_EQUAL")
-    for style in ("disabled", "enabled", "active"):
+    for style in ("disabled", "enabled", "advised", "active"):
         coords = groups[style]
         if coords:
             shader.uniform_float("color", COLOURS[style])

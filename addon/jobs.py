@@ -1,4 +1,4 @@
-"""Background jobs (simulation, reconstruction) as subprocesses: command lines, progress, cancel.
+"""Background jobs (simulation, reconstruction, spot advice, ...) as subprocesses: command lines, progress, cancel.
 
 No bpy here, so tests drive it with fake binaries. Operators poll a Job from a modal
 timer (UI) or wait on it (scripts, background mode).
@@ -82,6 +82,13 @@ def reconstruct_command(python: str, dataset: str, out_dir: str, mode: str, step
 
 def evaluate_command(python: str, mesh: str, dataset: str, out_dir: str) -> list[str]:
     return [str(python), "-m", "torch_recon", "evaluate", str(mesh), "--dataset", str(dataset), "--out", str(out_dir)]
+
+
+def advise_command(python: str, dataset: str, fit_dir: str, out_json: str, add: int, beyond_view_deg: float = 0.0,
+                   device: str = "auto") -> list[str]:
+    """`python -m torch_recon advise-spots DATASET FIT_DIR --add N --beyond-view-deg D --out JSON`."""
+    return [str(python), "-m", "torch_recon", "advise-spots", str(dataset), str(fit_dir), "--add", str(int(add)),
+            "--beyond-view-deg", f"{float(beyond_view_deg):g}", "--device", str(device), "--out", str(out_json)]
 
 
 def find_base_python() -> str:

@@ -93,6 +93,8 @@ class PLATOLIDAR_UL_spots(bpy.types.UIList):
         row = layout.row(align=True)
         row.prop(item, "enabled", text="")
         row.prop(item, "name", text="", emboss=False)
+        if item.advised:
+            row.label(text="", icon="SOLO_ON")  # added by Advise Spots
         t = item.target
         row.label(text=f"{t[0]:.2f}, {t[1]:.2f}, {t[2]:.2f}")
 
@@ -120,7 +122,26 @@ class PLATOLIDAR_PT_spots(_LidarPanel, bpy.types.Panel):
         row = box.row(align=True)
         row.prop(s, "seed")
         row.operator("platolidar.generate_spots", icon="STICKY_UVS_DISABLE")
+        _advise_box(layout.box(), context)
         layout.prop(s, "show_rays")
+
+
+def _advise_box(box, context):
+    """Advise Spots: its settings, and the button, usable once the Reconstruct output folder holds a fast fit."""
+    from .operators.advise_spots import last_fit_dir
+
+    s = context.scene.platolidar
+    row = box.row(align=True)
+    row.prop(s, "advise_add")
+    row.prop(s, "advise_beyond_view_deg")
+    if _job_row(box, "advice"):
+        return
+    has_fit = last_fit_dir(context) is not None
+    row = box.row()
+    row.enabled = has_fit
+    row.operator("platolidar.advise_spots", icon="LIGHT_SPOT")
+    if not has_fit:
+        box.label(text="Needs a fast fit (Reconstruct, Mode Fast)", icon="INFO")
 
 
 class PLATOLIDAR_PT_simulate(_LidarPanel, bpy.types.Panel):

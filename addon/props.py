@@ -47,11 +47,17 @@ def _is_camera(self, obj):
     return obj.type == "CAMERA"
 
 
+#: name of the spots Advise Spots adds ('Advised 01', ...): settings files keep names, so the mark survives them
+ADVISED_PREFIX = "Advised"
+
+
 class PLATOLIDAR_PG_spot(bpy.types.PropertyGroup):
     # `name` is PropertyGroup's built-in name property (shown and renamed in the list)
     enabled: BoolProperty(name="Enabled", default=True, description="Simulate this spot", update=_redraw_views)
     target: FloatVectorProperty(name="Target", size=3, subtype="XYZ", unit="LENGTH", update=_redraw_views,
                                 description="World point the laser is aimed at (where it hits the surface)")
+    advised: BoolProperty(name="Advised", default=False,
+                          description="Added by Advise Spots (where a fast fit says new light is most needed)")
 
 
 class PLATOLIDAR_PG_settings(bpy.types.PropertyGroup):
@@ -119,6 +125,12 @@ class PLATOLIDAR_PG_settings(bpy.types.PropertyGroup):
     random_keep: IntProperty(name="Keep", default=_SIM.random_keep, min=1, description="Spots kept by diversity")
     seed: IntProperty(name="Seed", default=_SIM.seed, min=0, description="Seed of every random choice")
     show_rays: BoolProperty(name="Show Laser Rays", default=True, update=_redraw_views)
+    # Advise Spots (`advise-spots`; defaults and ranges are AdviceSettings', which imports torch: a test compares)
+    advise_add: IntProperty(name="Spots to Add", default=4, min=1, soft_max=32,
+                            description="Laser spots the advice adds to the list")
+    advise_beyond_view_deg: FloatProperty(name="Beyond View (deg)", default=0.0, min=0.0, max=60.0,
+                                          description="Also consider laser directions up to this many degrees "
+                                                      "beyond the camera's view (0: in view only)")
     # -- jobs -------------------------------------------------------------------------------
     output_dir: StringProperty(name="Dataset Folder", default="//lidar_dataset", subtype="DIR_PATH", options=_BLEND_RELATIVE,
                                description="Where the simulation writes the dataset")

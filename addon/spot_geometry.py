@@ -9,6 +9,7 @@ from __future__ import annotations
 from mathutils import Vector
 
 from .config_io import lidar_camera  # puts the project modules on sys.path (addon/_project.py)
+from .props import ADVISED_PREFIX
 
 from pipeline import blender_scene as bs  # noqa: E402
 from torch_recon.contract.dataset import SensorSpec  # noqa: E402
@@ -56,23 +57,25 @@ def aim_laser(scene, depsgraph, toward) -> Vector | None:
     return None if hit is None else hit[0]
 
 
-def add_spot(scene, target, name: str = ""):
-    """Append a spot aimed at the world point `target` and make it active."""
+def add_spot(scene, target, name: str = "", advised: bool = False):
+    """Append a spot aimed at the world point `target` and make it active; `advised`: from Advise Spots
+    (named 'Advised NN', see props.ADVISED_PREFIX)."""
     s = scene.platolidar
     sp = s.spots.add()
     sp.target = tuple(target)
     sp.enabled = True
-    sp.name = name or _unique_name(s.spots)
+    sp.advised = advised
+    sp.name = name or _unique_name(s.spots, ADVISED_PREFIX if advised else "Spot")
     s.active_spot_index = len(s.spots) - 1
     return sp
 
 
-def _unique_name(spots) -> str:
+def _unique_name(spots, prefix: str = "Spot") -> str:
     used = {sp.name for sp in spots}
     i = 1
-    while f"Spot {i:02d}" in used:
+    while f"{prefix} {i:02d}" in used:
         i += 1
-    return f"Spot {i:02d}"
+    return f"{prefix} {i:02d}"
 
 
 def generate_spots(scene, depsgraph, n: int, keep: int, seed: int):

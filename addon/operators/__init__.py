@@ -2,6 +2,7 @@
 
 from .add_spot_click import PLATOLIDAR_OT_add_spot_click
 from .add_spot_cursor import PLATOLIDAR_OT_add_spot_cursor
+from .advise_spots import PLATOLIDAR_OT_advise_spots
 from .cancel_job import PLATOLIDAR_OT_cancel_job
 from .check_environment import PLATOLIDAR_OT_check_environment
 from .evaluate import PLATOLIDAR_OT_evaluate, PLATOLIDAR_OT_open_summary
@@ -20,6 +21,7 @@ classes = (
     PLATOLIDAR_OT_add_spot_click,
     PLATOLIDAR_OT_remove_spot,
     PLATOLIDAR_OT_generate_spots,
+    PLATOLIDAR_OT_advise_spots,
     PLATOLIDAR_OT_export_config,
     PLATOLIDAR_OT_load_config,
     PLATOLIDAR_OT_simulate,

@@ -1,9 +1,13 @@
-"""Cancel the running simulation or reconstruction (same as Esc over the 3D View)."""
+"""Cancel a running background job: simulation, reconstruction, ... (same as Esc over the 3D View)."""
 
 import bpy
 from bpy.props import EnumProperty
 
 from .. import jobs
+
+#: the job operators' `job_kind`s and their names
+KINDS = (("simulation", "Simulation"), ("reconstruction", "Reconstruction"), ("evaluation", "Evaluation"),
+         ("advice", "Spot advice"), ("environment", "Environment set-up"))
 
 
 class PLATOLIDAR_OT_cancel_job(bpy.types.Operator):
@@ -13,14 +17,11 @@ class PLATOLIDAR_OT_cancel_job(bpy.types.Operator):
     bl_label = "Cancel"
     bl_options = {"REGISTER"}
 
-    kind: EnumProperty(name="Job", items=(("simulation", "Simulation", ""),
-                                          ("reconstruction", "Reconstruction", ""),
-                                          ("evaluation", "Evaluation", ""),
-                                          ("environment", "Environment set-up", "")))
+    kind: EnumProperty(name="Job", items=[(k, label, "") for k, label in KINDS])
 
     @classmethod
     def poll(cls, context):
-        if all(jobs.active(k) is None for k in ("simulation", "reconstruction", "evaluation", "environment")):
+        if all(jobs.active(k) is None for k, _ in KINDS):
             cls.poll_message_set("Nothing is running")
             return False
         return True

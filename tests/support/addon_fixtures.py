@@ -188,6 +188,8 @@ class RecordingLayout:
         _check_call("operator", kw)
         _operator_rna(idname)
         self.log.append(("operator", idname))
+        if not getattr(self, "enabled", True):  # greyed out (layout.enabled = False)
+            self.log.append(("disabled", idname))
         return _OpProps(idname, self.log)
 
     def label(self, text="", **kw):
