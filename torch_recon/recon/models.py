@@ -289,7 +289,7 @@ class FastModel(ReconstructionModel):
             near, far = ray_box(o, d, self.grid.box.bbox_min, self.grid.box.bbox_max)
             far = torch.maximum(far, near)
             r = render_pruned(self.grid, self.occupancy, o, d, near, far, self.step_len, self.tau_step)
-            out.append(_depth(r, far, min_opacity))
+            out.append(rendered_depth(r, far, min_opacity))
         return torch.cat(out) if out else origins.new_zeros(0)
 
     def density(self, pts):
@@ -373,7 +373,9 @@ def binary_boundary_inset(clipped, level: float, half: float, inset_voxels: floa
     return out
 
 
-def _depth(r, far, min_opacity):
+def rendered_depth(r, far, min_opacity):
+    """Per-ray depth of a render `r`: the expected depth with the missing opacity placed at `far`
+    (`min_opacity` None), or the opacity-normalised depth, inf where the opacity stays below `min_opacity`."""
     if min_opacity is None:
         return r.depth + (1.0 - r.opacity) * far
     d = r.depth / r.opacity.clamp(min=1e-10)
