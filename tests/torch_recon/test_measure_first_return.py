@@ -1,5 +1,5 @@
 """A pixel part covered by a thin part holds two returns: the earlier one bounds the pixel's free space
-(preprocess `first_return_bin`, visible_depth `nearest`)."""
+(matched_filter `first_return_bin`, visible_depth `nearest`)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from torch_recon.measurements import Measurements, SpotMeasurement  # noqa: E402
-from torch_recon.preprocess import first_return_bin  # noqa: E402
+from torch_recon.matched_filter import first_return_bin  # noqa: E402
 from torch_recon.visible_depth import fuse_visible_depth  # noqa: E402
 
 

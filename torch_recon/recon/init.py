@@ -211,12 +211,13 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
                   count_shadow: bool = False, carve_spacing_voxels: float = 1.0, explain_shadow_rays: bool = False,
                   explain_camera_free: bool = False, explain_score: str = "ratio", nearest_free: bool = False,
                   nearest_surface: bool = False, seen_free=None, thin_part_edges: bool = True,
-                  thin_part_centre: str = "off", explain_lead_voxels: float = 0.0):
+                  thin_part_centre: str = "off", explain_lead_voxels: float = 0.0, thin_points=None):
     """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
     blocker of a shadowed segment (with `explain_shadow_rays`), 6 a part under a pixel wide (with
     `nearest_surface`: `thin_part_points`); and the count of shadowed secondary segments through each voxel
     (with `count_shadow`). With `nearest_free` a camera ray is free only up to its pixel's nearest depth.
-    seen_free: optional bool (nx, ny, nz), voxels the pixels' footprints saw through (camera-free as well)."""
+    seen_free: optional bool (nx, ny, nz), voxels the pixels' footprints saw through (camera-free as well).
+    thin_points: `thin_parts.thin_part_cloud` of these settings when already computed."""
     dev = data.pixel_dirs.device
     n = int(np.prod(box.shape))
     step = step_voxels * box.voxel
@@ -247,7 +248,7 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     nearest = torch.zeros(n, dtype=torch.bool, device=dev)
     if nearest_surface and data.nearest_depth is not None:
         # the nearest surface of a pixel whose strongest return lies behind it: a part thinner than the pixel
-        nearest = thin_part_voxels(data, box, edges=thin_part_edges, centre=thin_part_centre).reshape(-1)
+        nearest = thin_part_voxels(data, box, thin_part_edges, thin_part_centre, thin_points).reshape(-1)
     # shadow carving: lit pairs on the carving pixels only; shadowed pairs count occluder evidence
     on_sub = torch.zeros(data.height * data.width, dtype=torch.bool, device=dev)
     on_sub[sub] = True
@@ -318,7 +319,7 @@ MIN_SPOTS_BEYOND_VIEW = 2
 
 
 def configured_evidence_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float, seen_free=None,
-                             count_shadow: bool = False):
+                             count_shadow: bool = False, thin_points=None):
     """`evidence_grid` with a FastConfig's settings: the one place that maps the settings onto its arguments
     (the start field and the spot advisor both label voxels this way)."""
     return evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m,
@@ -327,7 +328,8 @@ def configured_evidence_grid(data: RayData, box: GridBox, cfg, secondary_offset_
                          explain_camera_free=cfg.explain_camera_free, explain_score=cfg.explain_score,
                          nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface,
                          seen_free=seen_free, thin_part_edges=cfg.thin_part_edges,
-                         thin_part_centre=cfg.thin_part_centre, explain_lead_voxels=cfg.explain_lead_voxels)
+                         thin_part_centre=cfg.thin_part_centre, explain_lead_voxels=cfg.explain_lead_voxels,
+                         thin_points=thin_points)
 
 
 def in_view(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_axis: str) -> torch.Tensor:
@@ -354,7 +356,7 @@ def in_view(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_ax
 
 
 def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0.0, view=None, surface=None,
-                 seen_free=None):
+                 seen_free=None, thin_points=None):
     """The fast mode's starting field (cfg: FastConfig) and the voxels the mesh may face (nx, ny, nz) bool.
 
     Known free (seen through by the sensor or crossed by a lit secondary ray): empty. Everything else
@@ -367,13 +369,14 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     fraction of a voxel (trilinear interpolation keeps a linear ramp linear); behind a visible surface
     a lit voxel stays free (thin parts keep their thickness), and so does a voxel the sensor saw through
     (beside an object's silhouette, where the plane of its face would extend).
-    surface: `visible_surface(data, box)` (points, normals) when already computed.
+    surface: `visible_surface(data, box)` (points, normals) when already computed; thin_points likewise
+    `thin_parts.thin_part_cloud` (the model's frozen thin-part mask uses the same points).
     """
     from .beyond_view import lit_side_of_hull, out_of_view_spots, unneeded_beside_view
     from .unobserved import bounding_planes, on_planes, shell_signed_distance
 
     label, shadow_count = configured_evidence_grid(data, box, cfg, secondary_offset_m, seen_free,
-                                                   count_shadow=cfg.trim_hull_voxels > 0)
+                                                   count_shadow=cfg.trim_hull_voxels > 0, thin_points=thin_points)
     free = (label == 2) | (label == 3)
     dev = data.pixel_dirs.device
     surface = visible_surface(data, box) if surface is None else surface
@@ -440,7 +443,7 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     if cfg.thin_part_radius_voxels > 0 and cfg.nearest_surface and data.nearest_depth is not None:
         # a tube round the thin parts' points (to a fraction of a voxel) in place of their whole voxels
         tube = thin_part_signed_distance(data, box, cfg.thin_part_radius_voxels * box.voxel, cfg.thin_part_edges,
-                                         cfg.thin_part_centre).to(dev)
+                                         cfg.thin_part_centre, thin_points).to(dev)
         below = torch.where(label == NEAREST, torch.tensor(cfg.raw_free, device=dev), raw)
         raw = torch.where(torch.isfinite(tube), torch.maximum(below, ramp(tube)), raw)
     return DensityGrid.from_xyz(box, raw.float(), cfg.density_scale), mesh_free

@@ -19,7 +19,7 @@ from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total
 from .renderer import render_field, render_pruned, secondary_rays
 from .sampler import importance_positions, merged_intervals, ray_box, uniform_intervals
 from .smoothness import NormalConsistencyPrior
-from .thin_parts import thin_part_signed_distance, thin_part_voxels
+from .thin_parts import thin_part_cloud, thin_part_signed_distance, thin_part_voxels
 from .visible_surface_init import (in_front_of_visible_surface, seen_free, seen_free_points, surface_offset,
                                    visible_surface)
 
@@ -68,6 +68,7 @@ class FastModel(ReconstructionModel):
         self.device = data.pixel_dirs.device
         self.bbox = grid_bbox(data, self.fc.resolution, self.fc.bbox_margin_voxels)
         self._surface = None    # (voxel, visible surface) of the latest grid: the start field and the mesh share it
+        self._thin_points = None    # (voxel, thin_part_cloud) of the latest grid: the start field and `thin_parts`
         self.level = 0 if self.fc.coarse_fraction > 0 and self.fc.coarse_resolution < self.fc.resolution else 1
         self.grid, self.free = self._initial(self.fc.coarse_resolution if self.level == 0 else self.fc.resolution)
         self._hook = None
@@ -89,7 +90,7 @@ class FastModel(ReconstructionModel):
             seen = seen_free(self.data, box, m["camera_to_world"], m["fov_rad"], m["fov_axis"],
                              self.fc.surface_margin_voxels, self._seen_depth(), self.fc.seen_free_corners)
         return initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box),
-                            self.visible_surface(box), seen_free=seen)
+                            self.visible_surface(box), seen_free=seen, thin_points=self.thin_points(box))
 
     def visible_surface(self, box):
         """`visible_surface` (points, normals) for `box`; it depends on the box's voxel size only, so it
@@ -97,6 +98,16 @@ class FastModel(ReconstructionModel):
         if self._surface is None or self._surface[0] != box.voxel:
             self._surface = (box.voxel, visible_surface(self.data, box))
         return self._surface[1]
+
+    def thin_points(self, box):
+        """`thin_part_cloud` (N, 3) for `box`'s voxel size, computed once per grid level; None where the fit
+        places no thin parts (`fast.nearest_surface` off, or no earliest returns measured)."""
+        if not (self.fc.nearest_surface and self.data.nearest_depth is not None):
+            return None
+        if self._thin_points is None or self._thin_points[0] != box.voxel:
+            self._thin_points = (box.voxel, thin_part_cloud(self.data, box.voxel, self.fc.thin_part_edges,
+                                                            self.fc.thin_part_centre))
+        return self._thin_points[1]
 
     @property
     def skip_warmup(self) -> bool:
@@ -134,13 +145,14 @@ class FastModel(ReconstructionModel):
         lit rays passing it (they see past a part under a pixel wide) lower it below the surface in a few dozen
         steps, and a pole or a leg breaks where one voxel of its column goes."""
         self.thin_parts = None
-        if self.fc.thin_part_training != "free" and self.fc.nearest_surface and self.data.nearest_depth is not None:
+        points = self.thin_points(box)
+        if self.fc.thin_part_training != "free" and points is not None:
             fc = self.fc
             if fc.thin_part_radius_voxels > 0:     # the tube's whole ramp: it holds the part's place
                 vox = torch.isfinite(thin_part_signed_distance(self.data, box, fc.thin_part_radius_voxels * box.voxel,
-                                                               fc.thin_part_edges, fc.thin_part_centre))
+                                                               fc.thin_part_edges, fc.thin_part_centre, points))
             else:
-                vox = thin_part_voxels(self.data, box, edges=fc.thin_part_edges, centre=fc.thin_part_centre)
+                vox = thin_part_voxels(self.data, box, fc.thin_part_edges, fc.thin_part_centre, points)
             self.thin_parts = vox.permute(2, 1, 0)[None, None].to(self.device)
 
     def _gradient_mask(self, g):
@@ -277,7 +289,7 @@ class FastModel(ReconstructionModel):
             near, far = ray_box(o, d, self.grid.box.bbox_min, self.grid.box.bbox_max)
             far = torch.maximum(far, near)
             r = render_pruned(self.grid, self.occupancy, o, d, near, far, self.step_len, self.tau_step)
-            out.append(_depth(r, far, min_opacity))
+            out.append(rendered_depth(r, far, min_opacity))
         return torch.cat(out) if out else origins.new_zeros(0)
 
     def density(self, pts):
@@ -361,7 +373,9 @@ def binary_boundary_inset(clipped, level: float, half: float, inset_voxels: floa
     return out
 
 
-def _depth(r, far, min_opacity):
+def rendered_depth(r, far, min_opacity):
+    """Per-ray depth of a render `r`: the expected depth with the missing opacity placed at `far`
+    (`min_opacity` None), or the opacity-normalised depth, inf where the opacity stays below `min_opacity`."""
     if min_opacity is None:
         return r.depth + (1.0 - r.opacity) * far
     d = r.depth / r.opacity.clamp(min=1e-10)

@@ -24,7 +24,7 @@ from .data import RayData
 from .fields import GridBox, NeRFField
 from .init import scene_bbox
 from .losses import distance_loss, in_warmup, shadow_loss
-from .models import ReconstructionModel, _depth
+from .models import ReconstructionModel, rendered_depth
 from .platonerf_render import render_hierarchical
 
 
@@ -140,7 +140,7 @@ class PlatoNeRFModel(ReconstructionModel):
             o, d = origins[i:i + chunk], dirs[i:i + chunk]
             near, far = self._camera_bounds(o, d, self.pc.test_near_m)
             fine, _ = self._render(o, d, near, far, train=False)
-            out.append(fine.depth if min_opacity is None else _depth(fine, far, min_opacity))
+            out.append(fine.depth if min_opacity is None else rendered_depth(fine, far, min_opacity))
         return torch.cat(out) if out else origins.new_zeros(0)
 
     def density(self, pts):

@@ -126,22 +126,30 @@ def _voxels_of(box, pts) -> torch.Tensor:
     return (torch.bincount(flat[inside], minlength=n) > 0).reshape(box.shape)
 
 
-def thin_part_voxels(data: RayData, box, edges: bool = True, centre: str = "off") -> torch.Tensor:
-    """Voxels (nx, ny, nz) bool of `box` holding a `thin_part_points` point: the start field occupies them
-    (`init.evidence_grid`, label NEAREST where no visible surface point lies) and `fast.thin_part_training`
-    keeps training from eroding them."""
-    return _voxels_of(box, torch.cat(list(thin_part_points(data, box.voxel, edges=edges, centre=centre))))
+def thin_part_cloud(data: RayData, voxel: float, edges: bool = True, centre: str = "off") -> torch.Tensor:
+    """All `thin_part_points` chunks as one (N, 3) tensor: the start field and the frozen thin-part mask of a
+    fit share one (`FastModel.thin_points`), passed as `points` below."""
+    return torch.cat(list(thin_part_points(data, voxel, edges=edges, centre=centre)))
 
 
-def thin_part_signed_distance(data: RayData, box, radius: float, edges: bool = True, centre: str = "off"):
+def thin_part_voxels(data: RayData, box, edges: bool = True, centre: str = "off", points=None) -> torch.Tensor:
+    """Voxels (nx, ny, nz) bool of `box` holding a `thin_part_points` point (`points`: `thin_part_cloud` when
+    already computed): the start field occupies them (`init.evidence_grid`, label NEAREST where no visible
+    surface point lies) and `fast.thin_part_training` keeps training from eroding them."""
+    return _voxels_of(box, thin_part_cloud(data, box.voxel, edges, centre) if points is None else points)
+
+
+def thin_part_signed_distance(data: RayData, box, radius: float, edges: bool = True, centre: str = "off",
+                              points=None):
     """(nx, ny, nz): `radius` minus the distance from each voxel centre to the nearest `thin_part_points` point,
     on the thin parts' voxels and their 26 neighbours (NaN elsewhere): a tube of that radius round the points.
     As a raw-density ramp it puts a part under a voxel wide where its points are, to a fraction of a voxel
     (trilinear interpolation of a ramp in the distance); a whole occupied voxel puts it at the voxel's centre,
-    up to half a voxel beside the points, once they are centred on the part (`centre` 'mean')."""
+    up to half a voxel beside the points, once they are centred on the part (`centre` 'mean').
+    points: `thin_part_cloud` when already computed."""
     from scipy.spatial import cKDTree
 
-    pts = torch.cat(list(thin_part_points(data, box.voxel, edges=edges, centre=centre)))
+    pts = thin_part_cloud(data, box.voxel, edges, centre) if points is None else points
     sd = torch.full(tuple(box.shape), float("nan"), device=pts.device)
     if len(pts) == 0:
         return sd

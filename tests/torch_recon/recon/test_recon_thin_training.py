@@ -113,3 +113,30 @@ def test_thin_part_training_settings_refuse_bad_values(assignment):
 
     with pytest.raises(SettingsError, match=assignment.split("=")[0].replace(".", r"\.")):
         override(FitConfig(), [assignment])
+
+
+@pytest.mark.parametrize("radius", [0.0, 0.5])
+def test_the_start_field_and_the_frozen_mask_share_one_set_of_thin_part_points(monkeypatch, radius):
+    """`thin_part_points` runs once per grid level (`FastModel.thin_points`), not once for the start field and
+    again for the frozen mask; the mask is the same as computed on its own."""
+    import torch_recon.recon.thin_parts as thin_parts
+
+    calls = []
+    original = thin_parts.thin_part_points
+
+    def counted(*args, **kwargs):
+        calls.append(args[1])
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(thin_parts, "thin_part_points", counted)
+    cfg = small_config(steps=10)
+    cfg.fast.resolution = 48
+    cfg.fast.thin_part_centre, cfg.fast.thin_part_training = "mean", "frozen"
+    cfg.fast.thin_part_radius_voxels = radius
+    data = _wall_post_data()
+    model = FastModel(data, cfg, _meta())
+    assert len(calls) == 1
+    box, fc = model.grid.box, cfg.fast
+    alone = (torch.isfinite(thin_part_signed_distance(data, box, radius * box.voxel, fc.thin_part_edges, "mean"))
+             if radius > 0 else thin_part_voxels(data, box, fc.thin_part_edges, "mean"))
+    assert bool(alone.any()) and torch.equal(model.thin_parts[0, 0].permute(2, 1, 0), alone)

@@ -38,7 +38,7 @@ from .platonerf_truth import export_ground_truth, import_ground_truth
 from .schema import DatasetError, Manifest, NoiseSpec, Provenance, PulseSpec, SensorSpec, Spot, TimeGate, \
     TransientLayout
 from .field_reader import FieldReader
-from .store import Dataset, DatasetWriter, _check_array, read_json, transient_relpath
+from .store import Dataset, DatasetWriter, check_array, read_json, transient_relpath
 from .transient import Transient
 
 TRANSFORMS = "transforms_train.json"
@@ -222,7 +222,7 @@ def _load_cube(src: Path, rel: str, field: str) -> np.ndarray:
         raise DatasetError(str(p), field, f"expected a transient cube H x W x T, got shape {cube.shape}")
     if not np.issubdtype(cube.dtype, np.number):
         raise DatasetError(str(p), field, f"expected numbers, got dtype {cube.dtype}")
-    _check_array(cube, str(p), field, nonneg=True)
+    check_array(cube, str(p), field, nonneg=True)
     return cube
 
 

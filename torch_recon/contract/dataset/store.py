@@ -40,7 +40,9 @@ def measurement_relpath(spot_id: int) -> str:
     return f"{MEASUREMENT_DIR}/spot_{spot_id:04d}.exr"
 
 
-def _check_array(arr: np.ndarray, file: str, field: str, nonneg: bool = False, allow_inf: bool = False):
+def check_array(arr: np.ndarray, file: str, field: str, nonneg: bool = False, allow_inf: bool = False):
+    """DatasetError naming `file` and `field` for NaN or infinite values (+inf allowed with `allow_inf`: no
+    return) and, with `nonneg`, negative ones."""
     bad = ~np.isfinite(arr) if not allow_inf else np.isnan(arr)
     if allow_inf:
         bad |= np.isneginf(arr)
@@ -134,7 +136,7 @@ class Dataset:
             if chans[name].shape != (s.height, s.width):
                 raise DatasetError(f, field, f"expected images of {s.height}x{s.width}, got {chans[name].shape}")
         path = chans["path_m"].astype(np.float32)
-        _check_array(path, f, field, nonneg=True)
+        check_array(path, f, field, nonneg=True)
         lit, valid = chans["lit"] > 0.5, chans["valid"] > 0.5
         if np.any(lit & valid & (path <= 0)):
             raise DatasetError(f, field, f"{int((lit & valid & (path <= 0)).sum())} lit pixel(s) without a "
@@ -153,7 +155,7 @@ class Dataset:
         d = np.stack([chans[c] for c in "XYZ"], -1).astype(np.float64)
         if d.shape != (s.height, s.width, 3):
             raise DatasetError(f, field, f"expected images of {s.height}x{s.width}, got {d.shape[:2]}")
-        _check_array(d, f, field)
+        check_array(d, f, field)
         n = np.linalg.norm(d, axis=-1)
         if np.any(np.abs(n - 1.0) > 1e-3):
             raise DatasetError(f, field, f"{int((np.abs(n - 1) > 1e-3).sum())} direction(s) are not unit vectors")
@@ -168,7 +170,7 @@ class Dataset:
         if d.shape != (s.height, s.width):
             raise DatasetError(str(self.root / rel), "ground_truth.train_depth_file",
                                f"expected shape {(s.height, s.width)}, got {d.shape}")
-        _check_array(d, str(self.root / rel), "ground_truth.train_depth_file", nonneg=True, allow_inf=True)
+        check_array(d, str(self.root / rel), "ground_truth.train_depth_file", nonneg=True, allow_inf=True)
         return d.astype(np.float32)
 
     def test_views(self) -> tuple[GroundTruthViews, np.ndarray, np.ndarray] | None:
@@ -182,7 +184,7 @@ class Dataset:
         if d.shape != (n * tv.height, tv.width):
             raise DatasetError(str(path), "ground_truth.test_views.depth_file",
                                f"expected shape {(n * tv.height, tv.width)} ({n} views), got {d.shape}")
-        _check_array(d, str(path), "ground_truth.test_views.depth_file", nonneg=True, allow_inf=True)
+        check_array(d, str(path), "ground_truth.test_views.depth_file", nonneg=True, allow_inf=True)
         return tv, np.asarray(tv.camera_to_world), d.reshape(n, tv.height, tv.width).astype(np.float32)
 
     def content_hash(self) -> str:
@@ -227,7 +229,7 @@ def read_transient_file(path: Path, manifest: Manifest, field: str) -> Transient
     window = np.empty((s.height, s.width, lay.window_bins), np.float32)
     for j, n in enumerate(names):
         window[..., j] = chans.pop(n)
-    _check_array(window, f, field, nonneg=True)
+    check_array(window, f, field, nonneg=True)
     return Transient(start, window, s.bins)
 
 
