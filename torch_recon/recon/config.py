@@ -193,6 +193,11 @@ class FastConfig:
     mesh_hull_inset_voxels: float = 0.0   # the shadow hull's binary boundary (occupied next to free) is placed this far
                                           # inside the voxel face. 0.35: F@2cm +0.005..+0.025 and hidden recall up on five
                                           # scenes, organic-occluded -0.034 / -0.045 (its hull lies inside the blob); off
+    mesh_hull_inset_max_voxels: int = 0   # ... only where the hull is at most this many voxels thick across the face
+                                          # (free again beyond: a 1 cm lamp-shade wall in two voxels); 0: everywhere
+    mesh_hull_inset_min_voxels: int = 1   # ... and at least this many (2: a one-voxel leg or blocker keeps its faces).
+                                          # inset 0.35, runs 2..2 (session 12): thin-structures F@2cm 0.816 -> 0.838,
+                                          # dark-room hidden R 0.799 -> 0.792 (its chair), so off (docs/reconstruction.md)
     # --- visible surfaces of the mesh (session 7) ---
     mesh_front_of_visible: bool = True  # the mesh also keeps faces facing the voxels just in front of a measured
                                         # visible point (along its normal): cave-chair start field, sensor
@@ -307,6 +312,13 @@ class FitConfig:
         if not 0.0 <= self.fast.mesh_hull_inset_voxels <= 0.45:
             raise SettingsError("fast.mesh_hull_inset_voxels",
                                 f"expected voxels in [0, 0.45] (0: off), got {self.fast.mesh_hull_inset_voxels}")
+        if not 0 <= self.fast.mesh_hull_inset_max_voxels <= 8:
+            raise SettingsError("fast.mesh_hull_inset_max_voxels",
+                                f"expected voxels in [0, 8] (0: any thickness), got {self.fast.mesh_hull_inset_max_voxels}")
+        if not 1 <= self.fast.mesh_hull_inset_min_voxels <= max(self.fast.mesh_hull_inset_max_voxels, 1):
+            raise SettingsError("fast.mesh_hull_inset_min_voxels",
+                                f"expected voxels in [1, fast.mesh_hull_inset_max_voxels], got "
+                                f"{self.fast.mesh_hull_inset_min_voxels}")
         if not -0.5 <= self.fast.mesh_level_shift_voxels <= 0.5:
             raise SettingsError("fast.mesh_level_shift_voxels",
                                 f"expected voxels in [-0.5, 0.5] (0: off), got {self.fast.mesh_level_shift_voxels}")

@@ -54,6 +54,40 @@ def test_one_voxel_part_keeps_its_thickness_less_twice_the_inset():
     assert far - near == pytest.approx(1.0 - 2 * 0.25)
 
 
+def _slab(thickness):
+    """Saturated free on a (9, 3, 3) grid with an occupied slab x = 3 .. 3 + thickness - 1."""
+    v = torch.full((9, 3, 3), LEVEL - HALF)
+    v[3:3 + thickness] = LEVEL + HALF
+    return v
+
+
+def _thickness(column):
+    return (8 - _crossing(column[::-1])) - _crossing(column)
+
+
+@pytest.mark.parametrize("thickness, thinned", [(1, False), (2, True), (3, False)])
+def test_inset_only_across_slabs_of_the_given_thickness(thickness, thinned):
+    """max 2, min 2: a wall a voxel fraction thick straddling two voxels is pulled in from both faces; a one-voxel
+    run (a leg, a restored blocker: the part at its centre) and a thick hull keep their faces."""
+    out = binary_boundary_inset(_slab(thickness), LEVEL, HALF, 0.3, max_thickness_voxels=2, min_thickness_voxels=2)
+    got = _thickness(out[:, 1, 1].numpy())
+    assert got == pytest.approx(thickness - 0.6 if thinned else thickness)
+
+
+def test_inset_leaves_voxels_next_to_a_measured_surface_and_kept_ones():
+    """A voxel next to a measured surface's outer ramp (unsaturated, below the level) is not lowered: that
+    surface's crossing would move; its neighbour in the slab is. A kept voxel (a thin part) is never lowered."""
+    v = _slab(2)
+    v[3, 0, 1] = LEVEL - 1.0                 # a measured surface's ramp beside voxel (3, 1, 1)
+    out = binary_boundary_inset(v, LEVEL, HALF, 0.3, max_thickness_voxels=2, min_thickness_voxels=2)
+    assert out[3, 1, 1] == v[3, 1, 1]
+    assert out[4, 1, 1] < v[4, 1, 1]
+    keep = torch.zeros(v.shape, dtype=torch.bool)
+    keep[3:5] = True
+    out = binary_boundary_inset(_slab(2), LEVEL, HALF, 0.3, max_thickness_voxels=2, keep=keep)
+    assert torch.equal(out, _slab(2))
+
+
 def test_surface_placement_settings_are_range_checked():
     from torch_recon.contract.errors import SettingsError
     from torch_recon.recon.config import FitConfig, override
@@ -62,6 +96,8 @@ def test_surface_placement_settings_are_range_checked():
         override(FitConfig(), ["fast.mesh_hull_inset_voxels=0.5"])
     with pytest.raises(SettingsError, match="fast.mesh_level_shift_voxels"):
         override(FitConfig(), ["fast.mesh_level_shift_voxels=0.6"])
+    with pytest.raises(SettingsError, match="fast.mesh_hull_inset_min_voxels"):
+        override(FitConfig(), ["fast.mesh_hull_inset_max_voxels=2", "fast.mesh_hull_inset_min_voxels=3"])
 
 
 def test_fast_model_surface_volume_applies_the_settings():
