@@ -31,8 +31,8 @@ import torch
 from ..contract.errors import PlatolidarError, SettingsError
 from ..contract.spots import pixel_directions, select_diverse_spots
 from .fields import GridBox
-from .init import _marching_cells, configured_evidence_grid, in_view
-from .visible_surface_init import _dilate_cube, visible_surface
+from .init import configured_evidence_grid, in_view, marching_cells
+from .visible_surface_init import coarse_sensor_seen_free, dilate_cube, visible_surface
 
 #: voxel classes along a segment
 FREE, HULL, SOLID = 0, 1, 2
@@ -119,23 +119,26 @@ def load_fit_volume(fit_dir):
     return opacity, lo, hi, level, settings
 
 
-def voxel_classes(data, box: GridBox, opacity, level, fast: dict, meta: dict) -> torch.Tensor:
+def voxel_classes(data, box: GridBox, opacity, level, fast: dict, meta: dict, offset_m: float) -> torch.Tensor:
     """Flat (x-major) class per voxel: HULL (shadow hull in the measured space, crossed by no lit segment,
     still occupied after training, more than SURFACE_BAND_VOXELS from a measured surface), SOLID (every other
-    occupied voxel: measured surfaces, blockers, the completed planes) or FREE."""
+    occupied voxel: measured surfaces, blockers, the completed planes) or FREE. offset_m: the fit's secondary
+    ray offset (FastModel.offset_for)."""
     import dataclasses
 
     from .config import FastConfig
     known = {f.name for f in dataclasses.fields(FastConfig)}
     cfg = FastConfig(**{k: v for k, v in fast.items() if k in known})
-    label, _ = configured_evidence_grid(data, box, cfg, cfg.secondary_offset_voxels * box.voxel)
+    # labelled as the fit's start field on its final grid (a coarse sensor's seen-free space included)
+    label, _ = configured_evidence_grid(data, box, cfg, offset_m,
+                                        seen_free=coarse_sensor_seen_free(data, box, cfg, meta))
     view = in_view(data, box, meta["camera_to_world"], meta["fov_rad"], meta["fov_axis"])
     occupied = torch.as_tensor(opacity >= level, device=label.device)
     cls = torch.full(box.shape, FREE, dtype=torch.int8, device=label.device)
     cls[occupied] = SOLID
     # hidden voxels next to a measured surface are the surface's own thickness (a wall seen at a grazing angle
     # has voxels no pixel's point lands in): solid, not unbounded space
-    band = _dilate_cube((label == 1).float(), SURFACE_BAND_VOXELS) > 0
+    band = dilate_cube((label == 1).float(), SURFACE_BAND_VOXELS) > 0
     cls[occupied & (label == 0) & view & ~band] = HULL
     return cls.reshape(-1)
 
@@ -153,7 +156,7 @@ def _segment_values(box, cls, hull_index, n_hull, origins, ends, off, step, prio
         return values
     near = torch.full_like(length, off)
     log_lit = math.log1p(-prior) * step / box.voxel     # per hull sample (step / voxel of a voxel)
-    for rays, flat, keep in _marching_cells(box, o, d, near, length - off, step):
+    for rays, flat, keep in marching_cells(box, o, d, near, length - off, step):
         c = cls[flat.where(keep, 0.0).long()]
         hull = keep & (c == HULL)
         clear = ~(keep & (c == SOLID)).any(1)
@@ -170,7 +173,7 @@ def _laser_reaches(box, cls, laser, points, off, step):
     length = torch.linalg.vector_norm(v, dim=-1).clamp(min=1e-9)
     ok = torch.ones(len(points), dtype=torch.bool, device=points.device)
     far = (length - off).clamp(min=0)
-    for rays, flat, keep in _marching_cells(box, laser.expand_as(points).contiguous(), v / length[:, None],
+    for rays, flat, keep in marching_cells(box, laser.expand_as(points).contiguous(), v / length[:, None],
                                             torch.zeros_like(length), far, step):
         c = cls[flat.where(keep, 0.0).long()]
         ok[rays] = ~(keep & (c != FREE)).any(1)
@@ -185,7 +188,7 @@ def _landing_points(box, cls, laser, dirs, step):
     near, far = ray_box(org, dirs, box.bbox_min, box.bbox_max)
     near = near.clamp(min=0)
     out = torch.full_like(dirs, float("nan"))
-    for rays, flat, keep in _marching_cells(box, org, dirs, near, far, step):
+    for rays, flat, keep in marching_cells(box, org, dirs, near, far, step):
         c = cls[flat.where(keep, 0.0).long()]
         hit = keep & (c != FREE)
         first = torch.where(hit.any(1), hit.float().argmax(1), torch.full_like(rays, -1))
@@ -292,14 +295,14 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
     meta = {"camera_to_world": np.asarray(meas.camera_to_world), "fov_rad": meas.fov_rad, "fov_axis": meas.fov_axis}
     sensor = SimpleNamespace(width=meas.width, height=meas.height, fov_rad=meas.fov_rad, fov_axis=meas.fov_axis,
                              camera_to_world=meta["camera_to_world"])
-    cls = voxel_classes(data, box, opacity, level, fast, meta)
+    fit_offset = max(fit_settings["loss"]["secondary_offset_m"], fast["secondary_offset_voxels"] * box.voxel)
+    cls = voxel_classes(data, box, opacity, level, fast, meta, fit_offset)
     hull_flat = torch.nonzero(cls == HULL).squeeze(1)
     hull_index = torch.full((cls.numel(),), -1, dtype=torch.long, device=dev)
     hull_index[hull_flat] = torch.arange(len(hull_flat), device=dev)
     n_hull = len(hull_flat)
     notes = [] if n_hull else ["the fit has no unbounded shadow hull in the measured space: no spot to advise"]
-    off = max(fit_settings["loss"]["secondary_offset_m"], fast["secondary_offset_voxels"] * box.voxel,
-              fast["surface_margin_voxels"] * box.voxel)
+    off = max(fit_offset, fast["surface_margin_voxels"] * box.voxel)
     step = fast["step_voxels"] * box.voxel
 
     # the segments' far ends: the sensor-visible points (every stride-th pixel) and their normals
