@@ -12,10 +12,10 @@ measured), and N candidates are chosen greedily by the expected number of hull v
 (coverage: a candidate that repeats an existing spot's segments gains nothing).
 
 Candidates: spread-out points of the sensor-visible surface (`contract.spots.select_diverse_spots`, the
-one diversity rule) that the laser reaches; optionally laser directions beyond the sensor's view, which
-land on the fit's surface (a galvo scans wider than the camera sees; such spots are placed by
-preprocessing from their two-bounce returns, see docs/reconstruction.md "Laser spots outside the
-sensor's view").
+one diversity rule) that the laser reaches; and laser directions beyond the sensor's view, which land on
+the fit's surface (a galvo scans wider than the camera sees; such spots are placed by preprocessing from
+their two-bounce returns, see docs/reconstruction.md "Laser spots outside the sensor's view"): by default
+as far beyond the view as the capture's own spots lie (in view only when all of them are in view).
 """
 
 from __future__ import annotations
@@ -47,7 +47,8 @@ class AdviceSettings:
     add: int = 4                      # spots to advise
     candidates: int = 300             # spread-out candidate spots scored (on the sensor-visible surface)
     occupied_prior: float = 0.25      # chance that one shadow-hull voxel is really occupied (the lit-segment model)
-    beyond_view_deg: float = 0.0      # also laser directions up to this far beyond the sensor's view (0: in view only)
+    beyond_view_deg: float | None = None  # also laser directions up to this far beyond the sensor's view (0: in
+                                      # view only; none: as far beyond as the capture's own farthest spot)
     pixel_stride: int = 2             # segments to every n-th pixel along each image axis
     seed: int = 0                     # candidate choice (select_diverse_spots)
     device: str = "cpu"               # torch device
@@ -268,6 +269,23 @@ def beyond_view_directions(sensor, beyond_deg: float, n: int = 64):
     return pixel_directions(sensor, np.stack([cc[outside], rr[outside]], 1))
 
 
+def degrees_beyond_view(sensor, points) -> float:
+    """How far (deg) beyond the edge of the sensor's image the farthest of `points` (N, 3) lies, along the
+    image's x or y axis (the measure `beyond_view_directions` extends the image by); 0 when all project
+    inside or lie behind the sensor."""
+    from ..contract.frames import focal_length_px, project_points
+
+    col, row, depth = project_points(sensor.camera_to_world, sensor.width, sensor.height, sensor.fov_rad,
+                                     np.asarray(points, np.float64).reshape(-1, 3), sensor.fov_axis)
+    front = depth > 0
+    if not np.any(front):
+        return 0.0
+    f = focal_length_px(sensor.width, sensor.height, sensor.fov_rad, sensor.fov_axis)
+    over_x = np.arctan(np.abs(col[front] - 0.5 * sensor.width) / f) - math.atan(0.5 * sensor.width / f)
+    over_y = np.arctan(np.abs(row[front] - 0.5 * sensor.height) / f) - math.atan(0.5 * sensor.height / f)
+    return float(np.degrees(max(0.0, over_x.max(), over_y.max())))
+
+
 def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measurements=None) -> Advice:
     """Advise `settings.add` laser spots for `dataset` from its fast fit in `fit_dir` (see the module doc).
     measurements: the dataset's `Measurements` when already preprocessed (else preprocessed here)."""
@@ -333,8 +351,13 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
         p_in, pick = p_in[reach], pick[reach.cpu().numpy()]
     cand_pts.append(p_in)
     cand_pix += [(int(pix[i, 1]), int(pix[i, 0])) for i in pick]
-    if s.beyond_view_deg > 0:
-        dirs = torch.as_tensor(beyond_view_directions(sensor, s.beyond_view_deg), dtype=torch.float32, device=dev)
+    beyond = s.beyond_view_deg
+    if beyond is None:          # the laser is known to reach as far as the capture's own spots
+        beyond = min(degrees_beyond_view(sensor, data.spot_points.cpu().numpy()), 60.0)
+        if beyond > 0:
+            notes.append(f"candidates up to {beyond:.0f} deg beyond the view: as far as the capture's spots")
+    if beyond > 0:
+        dirs = torch.as_tensor(beyond_view_directions(sensor, beyond), dtype=torch.float32, device=dev)
         land = _landing_points(box, cls, data.laser_origin, dirs, step)
         land = land[torch.isfinite(land).all(1)]
         if len(land):
@@ -342,8 +365,7 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
             cand_pts.append(land[torch.as_tensor(keep, device=dev)])
             cand_pix += [None] * len(keep)
         else:
-            notes.append(f"no laser direction within {s.beyond_view_deg} deg beyond the view lands on the fit's "
-                         f"surface")
+            notes.append(f"no laser direction within {beyond:.0f} deg beyond the view lands on the fit's surface")
     cand = torch.cat(cand_pts)
     cand_nrm = spot_normals(box, opacity, cand, pts_all, nrm_all)
     end_m = _path_range_end(dataset) if measurements is None else None

@@ -115,3 +115,23 @@ def test_a_coarse_sensor_hull_leaves_out_what_the_sensor_saw_through():
     cls = voxel_classes(data, box, opacity, 0.5, dataclasses.asdict(fc), meta, fc.secondary_offset_voxels * box.voxel)
     hull = (cls == HULL).reshape(tuple(box.shape))
     assert int(hull.sum()) > 0 and int((hull & seen).sum()) == 0
+
+
+def test_by_default_the_advisor_aims_as_far_beyond_the_view_as_the_capture_s_spots():
+    """`beyond_view_deg` none: candidates beyond the image reach as far as the capture's farthest spot (a laser
+    known to scan there), measured along the image axes; none when every spot is in view."""
+    from types import SimpleNamespace
+
+    from torch_recon.contract.frames import look_at_c2w
+    from torch_recon.recon.spot_advice import degrees_beyond_view
+
+    assert AdviceSettings().beyond_view_deg is None
+    # looking along +y with a 90 deg view: the image edge is 45 deg off-axis
+    sensor = SimpleNamespace(width=64, height=48, fov_rad=np.pi / 2, fov_axis="x",
+                             camera_to_world=look_at_c2w([0.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
+    at = lambda deg_x, deg_z: [np.tan(np.radians(deg_x)), 1.0, np.tan(np.radians(deg_z))]  # noqa: E731
+    assert degrees_beyond_view(sensor, [at(10, 5), at(-40, 0)]) == 0.0
+    assert degrees_beyond_view(sensor, [at(10, 5), at(-60, 0)]) == pytest.approx(15.0, abs=1e-6)
+    half_y = np.degrees(np.arctan(24 / 32))          # the image's half height, at the same focal length
+    assert degrees_beyond_view(sensor, [at(0, half_y + 7)]) == pytest.approx(7.0, abs=1e-6)
+    assert degrees_beyond_view(sensor, [[0.0, -1.0, 0.0]]) == 0.0      # behind the sensor
