@@ -34,8 +34,8 @@ class Settings:
     first_pass: str = "spread"      # the first pass's K of the scene's spots: spread-out (--spots K) or its first K
     controls: tuple[str, ...] = ("default", "alone", "spread")   # the scene's default spots; per K: the K alone,
                                     # K + spread-out unused candidates
-    beyond_view_deg: str = ""       # scene:deg pairs; other scenes: the advisor's default (as far beyond the view
-                                    # as the first pass's spots lie)
+    beyond_view_deg: str = ""       # scene:deg pairs (none: as far as the first pass's spots lie); other
+                                    # scenes: the advisor's default (in view only)
     seed: int = 0
     threads: int = 2                # CPU threads of each fit
     timeout_s: float = 1800.0
@@ -77,14 +77,18 @@ def select_diverse(points, count: int, seed: int) -> list:
 
 def _beyond(s: Settings, scene: str) -> str:
     pairs = dict(p.split(":") for p in s.beyond_view_deg.split(",") if p)
-    return pairs.get(scene, "none")
+    return pairs.get(scene, "0")
 
 
 def run(s: Settings, ctx) -> list:
     rows = []
 
     def measure(scene, label, ds, **extra):
-        res = runners.fit(ctx, ds, f"{scene}-{label}", threads=s.threads, timeout=s.timeout_s)
+        try:
+            res = runners.fit(ctx, ds, f"{scene}-{label}", threads=s.threads, timeout=s.timeout_s)
+        except runners.Refused as exc:  # e.g. an advised spot beyond the view whose light the sensor never sees
+            rows.append(ctx.keep(runners.refused_row(label, scene, exc, load_1min=ctx.load_1min(), **extra)))
+            return
         rows.append(ctx.keep({"method": label, "scene": scene, **{k: res.get(k) for k in TIMES},
                               "load_1min": ctx.load_1min(), "depth_l1_m": res.get("depth_l1_m"),
                               **{k: res.get(k) for k in runners.OBJECT_FIELDS}, **extra}))

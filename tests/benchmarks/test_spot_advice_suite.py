@@ -21,4 +21,4 @@ def test_beyond_view_per_scene_else_the_advisor_default():
     from benchmarks.suites.spot_advice import _beyond
 
     s = all_suites()["spot_advice"].settings(False, ["beyond_view_deg=outside-fov:30"])
-    assert _beyond(s, "outside-fov") == "30" and _beyond(s, "dark-room") == "none"
+    assert _beyond(s, "outside-fov") == "30" and _beyond(s, "dark-room") == "0"

@@ -14,8 +14,10 @@ measured), and N candidates are chosen greedily by the expected number of hull v
 Candidates: spread-out points of the sensor-visible surface (`contract.spots.select_diverse_spots`, the
 one diversity rule) that the laser reaches; and laser directions beyond the sensor's view, which land on
 the fit's surface (a galvo scans wider than the camera sees; such spots are placed by preprocessing from
-their two-bounce returns, see docs/reconstruction.md "Laser spots outside the sensor's view"): by default
-as far beyond the view as the capture's own spots lie (in view only when all of them are in view).
+their two-bounce returns, see docs/reconstruction.md "Laser spots outside the sensor's view"), up to a set
+angle or (none) as far beyond the view as the capture's own spots lie. Off by default: such a spot lands
+where the fit puts a surface in space no camera ray saw, and twice it met a real object the fit had not
+placed (outside-fov), lit only surfaces the sensor does not see, and preprocessing refused the dataset.
 """
 
 from __future__ import annotations
@@ -47,7 +49,7 @@ class AdviceSettings:
     add: int = 4                      # spots to advise
     candidates: int = 300             # spread-out candidate spots scored (on the sensor-visible surface)
     occupied_prior: float = 0.25      # chance that one shadow-hull voxel is really occupied (the lit-segment model)
-    beyond_view_deg: float | None = None  # also laser directions up to this far beyond the sensor's view (0: in
+    beyond_view_deg: float | None = 0.0   # also laser directions up to this far beyond the sensor's view (0: in
                                       # view only; none: as far beyond as the capture's own farthest spot)
     pixel_stride: int = 2             # segments to every n-th pixel along each image axis
     seed: int = 0                     # candidate choice (select_diverse_spots)

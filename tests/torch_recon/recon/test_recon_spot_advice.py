@@ -117,15 +117,15 @@ def test_a_coarse_sensor_hull_leaves_out_what_the_sensor_saw_through():
     assert int(hull.sum()) > 0 and int((hull & seen).sum()) == 0
 
 
-def test_by_default_the_advisor_aims_as_far_beyond_the_view_as_the_capture_s_spots():
+def test_beyond_view_none_aims_as_far_beyond_the_view_as_the_capture_s_spots():
     """`beyond_view_deg` none: candidates beyond the image reach as far as the capture's farthest spot (a laser
-    known to scan there), measured along the image axes; none when every spot is in view."""
+    known to scan there), measured along the image axes; none when every spot is in view. Default: in view."""
     from types import SimpleNamespace
 
     from torch_recon.contract.frames import look_at_c2w
     from torch_recon.recon.spot_advice import degrees_beyond_view
 
-    assert AdviceSettings().beyond_view_deg is None
+    assert AdviceSettings().beyond_view_deg == 0.0
     # looking along +y with a 90 deg view: the image edge is 45 deg off-axis
     sensor = SimpleNamespace(width=64, height=48, fov_rad=np.pi / 2, fov_axis="x",
                              camera_to_world=look_at_c2w([0.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
