@@ -138,7 +138,9 @@ COLUMNS = (("scene", "scene"), ("method", "spots"), ("obj_f2cm", "obj F@2cm", ".
 
 
 def readme(results: dict) -> str:
-    return markdown_table(results["rows"], COLUMNS)
+    rows = results["rows"]
+    first = {r["scene"]: i for i, r in reversed(list(enumerate(rows)))}    # merged runs: each scene's rows together
+    return markdown_table(sorted(rows, key=lambda r: first[r["scene"]]), COLUMNS)
 
 
 def plot(rows, settings, path):
