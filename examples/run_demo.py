@@ -26,7 +26,7 @@ def _have(module: str) -> bool:
     return importlib.util.find_spec(module) is not None
 
 
-def _run(cmd: list[str], log: Path) -> float:
+def run_stage(cmd: list[str], log: Path) -> float:
     print("\n$ " + " ".join(shlex.quote(c) for c in cmd), flush=True)
     t0 = time.perf_counter()
     with open(log, "w") as f:
@@ -65,7 +65,7 @@ def main(argv=None) -> int:
     if (ROOT / "pipeline" / "simulate.py").is_file():
         from pipeline.launch import simulate_command
 
-        timings["simulate"] = _run(simulate_command(["--example", args.example, "--out", dataset,
+        timings["simulate"] = run_stage(simulate_command(["--example", args.example, "--out", dataset,
                                                      "--resolution", args.resolution, "--spots", args.spots,
                                                      "--test-views", args.test_views, "--seed", args.seed]),
                                    out / "simulate.log")
@@ -87,14 +87,14 @@ def main(argv=None) -> int:
         if not _have(module):
             missing.append(f"{name} ({module}, not built yet)")
             continue
-        timings[name] = _run([py, "-m", "torch_recon", *cli], out / f"{name}.log")
+        timings[name] = run_stage([py, "-m", "torch_recon", *cli], out / f"{name}.log")
 
     reports = {}
     if _have("torch_recon.commands.evaluate"):
         for method in ("bflidar", "fast"):
             mesh = out / method / "mesh.ply"
             if mesh.is_file():
-                timings[f"evaluate {method}"] = _run(
+                timings[f"evaluate {method}"] = run_stage(
                     [py, "-m", "torch_recon", "evaluate", str(mesh), "--dataset", str(dataset),
                      "--out", str(out / method / "eval")], out / f"evaluate_{method}.log")
                 rep = out / method / "eval" / "report.json"

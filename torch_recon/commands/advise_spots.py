@@ -28,6 +28,7 @@ def run(args) -> int:
 
     from ..contract.errors import SettingsError
     from ..contract.settings import from_args
+    from ..recon.api import source_path
     from ..recon.spot_advice import AdviceSettings, advise_spots, load_fit_volume
 
     s = from_args(AdviceSettings, args)
@@ -35,7 +36,8 @@ def run(args) -> int:
     out = Path(args.out) if args.out else None
     if out is not None and (out.is_dir() or out.suffix != ".json"):
         raise SettingsError("out", f"expected a .json file name, got {out}" + (" (a folder)" if out.is_dir() else ""))
-    load_fit_volume(args.fit_dir)       # a missing or foreign fit folder is refused before preprocessing
+    source_path(args.dataset)           # the inputs in argument order, each refused before preprocessing
+    load_fit_volume(args.fit_dir)
     advice = advise_spots(args.dataset, args.fit_dir, s)
     print(f"shadow hull no lit segment crosses: {advice.hull_voxels} voxels of {advice.voxel_m * 100:.1f} cm "
           f"({advice.reached_by_existing} reached by the {len(advice.existing)} spots' segments, all shadowed)")

@@ -80,17 +80,24 @@ def measurements_hash(meas: Measurements) -> str:
     return "measurements:" + h.hexdigest()
 
 
+def source_path(source) -> Path:
+    """The path of a dataset directory or measurements file (.npz); FileNotFoundError naming it if absent
+    (commands check it before slower inputs)."""
+    path = Path(source)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such dataset directory or measurements file")
+    return path
+
+
 def load_source(source, progress: bool = True, device="cpu"):
     """Measurements and a hash naming the data: from a Measurements, a .npz, or a dataset directory
     (preprocessed, visible depth included, with torch on `device`)."""
     if isinstance(source, Measurements):
         return source, measurements_hash(source)
-    path = Path(source)
+    path = source_path(source)
     if path.is_file():
         m = Measurements.load(path)
         return m, measurements_hash(m)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no such dataset directory or measurements file")
     if (path / "measurements.npz").is_file() and not (path / "dataset.json").is_file():
         m = Measurements.load(path / "measurements.npz")
         return m, measurements_hash(m)

@@ -20,7 +20,7 @@ import torch
 
 from .data import RayData
 from .fields import GridBox
-from .visible_surface_init import _dilate_cube
+from .visible_surface_init import dilate_cube
 
 
 def _camera_basis(data: RayData):
@@ -61,12 +61,12 @@ def _shadowed_samples(data: RayData, box: GridBox, flat_hull: torch.Tensor, spot
                       step: float, chunk_samples: int):
     """Per chunk of the `spots`' shadowed segments, samples ordered from x to the spot: (voxel index (long,
     0 where outside the box), inside the box, inside the hull)."""
-    from .init import _marching_cells, _segments
+    from .init import marching_cells, _segments
 
     seg = _segments(data, data.shadowed & torch.isin(data.pair_spot, spots), off)
     if seg[0].shape[0] == 0:
         return
-    for _, flat, keep in _marching_cells(box, *seg, step, chunk_samples):
+    for _, flat, keep in marching_cells(box, *seg, step, chunk_samples):
         flat = flat.where(keep, 0.0).long()
         yield flat, keep, keep & flat_hull[flat]
 
@@ -88,7 +88,7 @@ def lit_side_of_hull(data: RayData, box: GridBox, hull: torch.Tensor, spots: tor
         ok &= k & ~flat_hull[cell]
         out[cell[ok]] = True
     # the face between the hull and that voxel may lie a voxel aside of the sample (diagonal steps)
-    return (_dilate_cube(out.reshape(box.shape).float(), 1) > 0) & ~hull
+    return (dilate_cube(out.reshape(box.shape).float(), 1) > 0) & ~hull
 
 
 

@@ -28,7 +28,7 @@ from .data import RayData, pixel_angle
 from .fields import DensityGrid, GridBox
 from .sampler import ray_box
 from .thin_parts import thin_part_signed_distance, thin_part_voxels
-from .visible_surface_init import _dilate_cube, surface_offset, surface_signed_distance, visible_surface
+from .visible_surface_init import dilate_cube, surface_offset, surface_signed_distance, visible_surface
 
 
 def scene_bbox(data: RayData, margin_m: float, quantile: float = 0.001):
@@ -57,7 +57,7 @@ def grid_bbox(data: RayData, resolution: int, margin_voxels: float):
     return scene_bbox(data, margin_voxels * voxel)
 
 
-def _marching_cells(box: GridBox, origins, dirs, near, far, step, chunk_samples: int = 1 << 20,
+def marching_cells(box: GridBox, origins, dirs, near, far, step, chunk_samples: int = 1 << 20,
                     core: float = 0.5):
     """The voxels of the fixed-step marching samples (interval midpoints, as `marching_intervals`) of each
     segment, chunk by chunk: yields (rays, flat, keep): the segments' indices (R,), the flat x-major voxel
@@ -107,7 +107,7 @@ def _accumulate(box: GridBox, origins, dirs, near, far, step, counts, chunk_samp
     if origins.shape[0] == 0:
         return
     n = counts.numel()
-    for _, flat, keep in _marching_cells(box, origins, dirs, near, far, step, chunk_samples, core):
+    for _, flat, keep in marching_cells(box, origins, dirs, near, far, step, chunk_samples, core):
         # samples that do not count go to one extra bin (cheaper than selecting the others)
         counts += torch.bincount(flat.masked_fill_(~keep, n).long().reshape(-1), minlength=n + 1)[:n]
 
@@ -157,7 +157,7 @@ def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count,
     can[list(restorable)] = True
     lead = min(max(float(lead), 0.0), float(near.min()))
     picked = []
-    for _, flat, keep in _marching_cells(box, origins, dirs, near - lead, far, step, chunk_samples):
+    for _, flat, keep in marching_cells(box, origins, dirs, near - lead, far, step, chunk_samples):
         flat = flat.where(keep, 0.0).long()
         lab = label[flat]
         past = torch.arange(flat.shape[1], device=flat.device)[None] * step >= lead - 1e-6
@@ -284,7 +284,7 @@ def _hull_prior(data: RayData, box: GridBox, cfg, label, free, view, sd, shell, 
     places, per connected part), every measured shadow staying blocked (hull_trim.py)."""
     from .hull_trim import keep_blocked, opening, outside_convex_closure, sole_blockers
     solid = ~free
-    band = torch.isfinite(sd) if sd is not None else _dilate_cube((label == 1).float(), 2) > 0
+    band = torch.isfinite(sd) if sd is not None else dilate_cube((label == 1).float(), 2) > 0
     removable = (label == 0) & solid & ~band & (shell < -0.5 * box.voxel)
     removable = removable if view is None else removable & view
     on_sub = _carving_pixel_mask(data, box, cfg.carve_spacing_voxels)
@@ -303,7 +303,7 @@ def _hull_prior(data: RayData, box: GridBox, cfg, label, free, view, sd, shell, 
                                           & parts)
         outside = removable & outside_convex_closure(parts, anchors, cfg.hull_closure_margin_voxels)
         # ... and the layer of hull between it and the floor or wall it stood on (parts leave that layer out)
-        removed |= outside | (removable & ~parts & (_dilate_cube(outside.float(), 1) > 0))
+        removed |= outside | (removable & ~parts & (dilate_cube(outside.float(), 1) > 0))
     removed = keep_blocked(box, solid, removed, segs, step) if bool(removed.any()) else removed
     return free | removed, removed
 
@@ -396,7 +396,7 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     trimmed = None
     if cfg.trim_hull_voxels > 0:
         from .hull_trim import unneeded_hull
-        band = torch.isfinite(sd) if sd is not None else _dilate_cube((label == 1).float(), 2) > 0
+        band = torch.isfinite(sd) if sd is not None else dilate_cube((label == 1).float(), 2) > 0
         hull = (label == 0) & (shell < -0.5 * box.voxel)     # never through a wall, floor or ceiling plane
         hull = hull if view is None else hull & view
         trimmed = unneeded_hull(free, hull, shadow_count, band, cfg.trim_hull_voxels)
@@ -418,7 +418,7 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     mesh_free = free
     if trimmed is not None:
         # where a trimmed lump met a wall the sensor did not see, the wall's plane places its surface
-        wall = (_dilate_cube(trimmed.float(), 2) > 0) & ~free & (shell.abs() < 2 * box.voxel)
+        wall = (dilate_cube(trimmed.float(), 2) > 0) & ~free & (shell.abs() < 2 * box.voxel)
         raw = torch.where(wall, ramp(shell), raw)
     if cfg.complete_unobserved and view is not None:
         unobserved = ~free & ~view

@@ -14,14 +14,14 @@ import torch.nn.functional as F
 from .config import FitConfig
 from .data import RayData
 from .fields import DensityGrid, GridBox
-from .init import far_pixel_spacing, grid_bbox, in_view, initial_grid
+from .init import grid_bbox, in_view, initial_grid
 from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total_loss
 from .renderer import render_field, render_pruned, secondary_rays
 from .sampler import importance_positions, merged_intervals, ray_box, uniform_intervals
 from .smoothness import NormalConsistencyPrior
 from .thin_parts import thin_part_cloud, thin_part_signed_distance, thin_part_voxels
-from .visible_surface_init import (in_front_of_visible_surface, seen_free, seen_free_points, surface_offset,
-                                   visible_surface)
+from .visible_surface_init import (coarse_sensor_seen_free, in_front_of_visible_surface, seen_depth,
+                                   seen_free_points, surface_offset, visible_surface)
 
 
 class ReconstructionModel:
@@ -82,13 +82,7 @@ class FastModel(ReconstructionModel):
     def _initial(self, res=None, box=None):
         """The start field and its free space on `box`, or on a new box of `res` voxels along the longest side."""
         box = GridBox(self.bbox[0], self.bbox[1], res).to(self.device) if box is None else box
-        seen = None
-        spacing = far_pixel_spacing(self.data)
-        if spacing is not None and spacing > self.fc.carve_seen_free_beyond_voxels * box.voxel:
-            # a coarse sensor: camera carving between the pixel rays too
-            m = self.meta
-            seen = seen_free(self.data, box, m["camera_to_world"], m["fov_rad"], m["fov_axis"],
-                             self.fc.surface_margin_voxels, self._seen_depth(), self.fc.seen_free_corners)
+        seen = coarse_sensor_seen_free(self.data, box, self.fc, self.meta)
         return initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box),
                             self.visible_surface(box), seen_free=seen, thin_points=self.thin_points(box))
 
@@ -185,13 +179,6 @@ class FastModel(ReconstructionModel):
             free = free | front.to(free.device)
         return free.cpu().numpy()
 
-    def _seen_depth(self):
-        """Per-pixel range the sensor saw through: as the camera carving, not past a thin part's earliest return."""
-        depth = self.data.visible_depth
-        if self.fc.nearest_free and self.data.nearest_depth is not None:
-            depth = torch.fmin(self.data.nearest_depth, depth)
-        return depth
-
     def free_points_test(self):
         """`seen_free_points` for the mesh's face test (None with `fast.mesh_seen_free` off): the sensor saw
         through a point between its pixel rays too (its footprint), where no camera ray's march passed."""
@@ -199,7 +186,7 @@ class FastModel(ReconstructionModel):
             return None
         m = self.meta
         return seen_free_points(self.data, m["camera_to_world"], m["fov_rad"], m["fov_axis"], self.grid.box.voxel,
-                                self._seen_depth(), corner_planes=self.fc.seen_free_corners)
+                                seen_depth(self.data, self.fc), corner_planes=self.fc.seen_free_corners)
 
     def offset_for(self, voxel):
         return max(self.cfg.loss.secondary_offset_m, self.fc.secondary_offset_voxels * voxel)

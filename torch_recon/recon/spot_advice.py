@@ -12,10 +12,12 @@ measured), and N candidates are chosen greedily by the expected number of hull v
 (coverage: a candidate that repeats an existing spot's segments gains nothing).
 
 Candidates: spread-out points of the sensor-visible surface (`contract.spots.select_diverse_spots`, the
-one diversity rule) that the laser reaches; optionally laser directions beyond the sensor's view, which
-land on the fit's surface (a galvo scans wider than the camera sees; such spots are placed by
-preprocessing from their two-bounce returns, see docs/reconstruction.md "Laser spots outside the
-sensor's view").
+one diversity rule) that the laser reaches; and laser directions beyond the sensor's view, which land on
+the fit's surface (a galvo scans wider than the camera sees; such spots are placed by preprocessing from
+their two-bounce returns, see docs/reconstruction.md "Laser spots outside the sensor's view"), up to a set
+angle or (none) as far beyond the view as the capture's own spots lie. Off by default: such a spot lands
+where the fit puts a surface in space no camera ray saw, and twice it met a real object the fit had not
+placed (outside-fov), lit only surfaces the sensor does not see, and preprocessing refused the dataset.
 """
 
 from __future__ import annotations
@@ -31,8 +33,8 @@ import torch
 from ..contract.errors import PlatolidarError, SettingsError
 from ..contract.spots import pixel_directions, select_diverse_spots
 from .fields import GridBox
-from .init import _marching_cells, configured_evidence_grid, in_view
-from .visible_surface_init import _dilate_cube, visible_surface
+from .init import configured_evidence_grid, in_view, marching_cells
+from .visible_surface_init import coarse_sensor_seen_free, dilate_cube, visible_surface
 
 #: voxel classes along a segment
 FREE, HULL, SOLID = 0, 1, 2
@@ -47,7 +49,8 @@ class AdviceSettings:
     add: int = 4                      # spots to advise
     candidates: int = 300             # spread-out candidate spots scored (on the sensor-visible surface)
     occupied_prior: float = 0.25      # chance that one shadow-hull voxel is really occupied (the lit-segment model)
-    beyond_view_deg: float = 0.0      # also laser directions up to this far beyond the sensor's view (0: in view only)
+    beyond_view_deg: float | None = 0.0   # also laser directions up to this far beyond the sensor's view (0: in
+                                      # view only; none: as far beyond as the capture's own farthest spot)
     pixel_stride: int = 2             # segments to every n-th pixel along each image axis
     seed: int = 0                     # candidate choice (select_diverse_spots)
     device: str = "cpu"               # torch device
@@ -119,23 +122,26 @@ def load_fit_volume(fit_dir):
     return opacity, lo, hi, level, settings
 
 
-def voxel_classes(data, box: GridBox, opacity, level, fast: dict, meta: dict) -> torch.Tensor:
+def voxel_classes(data, box: GridBox, opacity, level, fast: dict, meta: dict, offset_m: float) -> torch.Tensor:
     """Flat (x-major) class per voxel: HULL (shadow hull in the measured space, crossed by no lit segment,
     still occupied after training, more than SURFACE_BAND_VOXELS from a measured surface), SOLID (every other
-    occupied voxel: measured surfaces, blockers, the completed planes) or FREE."""
+    occupied voxel: measured surfaces, blockers, the completed planes) or FREE. offset_m: the fit's secondary
+    ray offset (FastModel.offset_for)."""
     import dataclasses
 
     from .config import FastConfig
     known = {f.name for f in dataclasses.fields(FastConfig)}
     cfg = FastConfig(**{k: v for k, v in fast.items() if k in known})
-    label, _ = configured_evidence_grid(data, box, cfg, cfg.secondary_offset_voxels * box.voxel)
+    # labelled as the fit's start field on its final grid (a coarse sensor's seen-free space included)
+    label, _ = configured_evidence_grid(data, box, cfg, offset_m,
+                                        seen_free=coarse_sensor_seen_free(data, box, cfg, meta))
     view = in_view(data, box, meta["camera_to_world"], meta["fov_rad"], meta["fov_axis"])
     occupied = torch.as_tensor(opacity >= level, device=label.device)
     cls = torch.full(box.shape, FREE, dtype=torch.int8, device=label.device)
     cls[occupied] = SOLID
     # hidden voxels next to a measured surface are the surface's own thickness (a wall seen at a grazing angle
     # has voxels no pixel's point lands in): solid, not unbounded space
-    band = _dilate_cube((label == 1).float(), SURFACE_BAND_VOXELS) > 0
+    band = dilate_cube((label == 1).float(), SURFACE_BAND_VOXELS) > 0
     cls[occupied & (label == 0) & view & ~band] = HULL
     return cls.reshape(-1)
 
@@ -153,7 +159,7 @@ def _segment_values(box, cls, hull_index, n_hull, origins, ends, off, step, prio
         return values
     near = torch.full_like(length, off)
     log_lit = math.log1p(-prior) * step / box.voxel     # per hull sample (step / voxel of a voxel)
-    for rays, flat, keep in _marching_cells(box, o, d, near, length - off, step):
+    for rays, flat, keep in marching_cells(box, o, d, near, length - off, step):
         c = cls[flat.where(keep, 0.0).long()]
         hull = keep & (c == HULL)
         clear = ~(keep & (c == SOLID)).any(1)
@@ -170,7 +176,7 @@ def _laser_reaches(box, cls, laser, points, off, step):
     length = torch.linalg.vector_norm(v, dim=-1).clamp(min=1e-9)
     ok = torch.ones(len(points), dtype=torch.bool, device=points.device)
     far = (length - off).clamp(min=0)
-    for rays, flat, keep in _marching_cells(box, laser.expand_as(points).contiguous(), v / length[:, None],
+    for rays, flat, keep in marching_cells(box, laser.expand_as(points).contiguous(), v / length[:, None],
                                             torch.zeros_like(length), far, step):
         c = cls[flat.where(keep, 0.0).long()]
         ok[rays] = ~(keep & (c != FREE)).any(1)
@@ -185,7 +191,7 @@ def _landing_points(box, cls, laser, dirs, step):
     near, far = ray_box(org, dirs, box.bbox_min, box.bbox_max)
     near = near.clamp(min=0)
     out = torch.full_like(dirs, float("nan"))
-    for rays, flat, keep in _marching_cells(box, org, dirs, near, far, step):
+    for rays, flat, keep in marching_cells(box, org, dirs, near, far, step):
         c = cls[flat.where(keep, 0.0).long()]
         hit = keep & (c != FREE)
         first = torch.where(hit.any(1), hit.float().argmax(1), torch.full_like(rays, -1))
@@ -265,6 +271,23 @@ def beyond_view_directions(sensor, beyond_deg: float, n: int = 64):
     return pixel_directions(sensor, np.stack([cc[outside], rr[outside]], 1))
 
 
+def degrees_beyond_view(sensor, points) -> float:
+    """How far (deg) beyond the edge of the sensor's image the farthest of `points` (N, 3) lies, along the
+    image's x or y axis (the measure `beyond_view_directions` extends the image by); 0 when all project
+    inside or lie behind the sensor."""
+    from ..contract.frames import focal_length_px, project_points
+
+    col, row, depth = project_points(sensor.camera_to_world, sensor.width, sensor.height, sensor.fov_rad,
+                                     np.asarray(points, np.float64).reshape(-1, 3), sensor.fov_axis)
+    front = depth > 0
+    if not np.any(front):
+        return 0.0
+    f = focal_length_px(sensor.width, sensor.height, sensor.fov_rad, sensor.fov_axis)
+    over_x = np.arctan(np.abs(col[front] - 0.5 * sensor.width) / f) - math.atan(0.5 * sensor.width / f)
+    over_y = np.arctan(np.abs(row[front] - 0.5 * sensor.height) / f) - math.atan(0.5 * sensor.height / f)
+    return float(np.degrees(max(0.0, over_x.max(), over_y.max())))
+
+
 def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measurements=None) -> Advice:
     """Advise `settings.add` laser spots for `dataset` from its fast fit in `fit_dir` (see the module doc).
     measurements: the dataset's `Measurements` when already preprocessed (else preprocessed here)."""
@@ -292,14 +315,14 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
     meta = {"camera_to_world": np.asarray(meas.camera_to_world), "fov_rad": meas.fov_rad, "fov_axis": meas.fov_axis}
     sensor = SimpleNamespace(width=meas.width, height=meas.height, fov_rad=meas.fov_rad, fov_axis=meas.fov_axis,
                              camera_to_world=meta["camera_to_world"])
-    cls = voxel_classes(data, box, opacity, level, fast, meta)
+    fit_offset = max(fit_settings["loss"]["secondary_offset_m"], fast["secondary_offset_voxels"] * box.voxel)
+    cls = voxel_classes(data, box, opacity, level, fast, meta, fit_offset)
     hull_flat = torch.nonzero(cls == HULL).squeeze(1)
     hull_index = torch.full((cls.numel(),), -1, dtype=torch.long, device=dev)
     hull_index[hull_flat] = torch.arange(len(hull_flat), device=dev)
     n_hull = len(hull_flat)
     notes = [] if n_hull else ["the fit has no unbounded shadow hull in the measured space: no spot to advise"]
-    off = max(fit_settings["loss"]["secondary_offset_m"], fast["secondary_offset_voxels"] * box.voxel,
-              fast["surface_margin_voxels"] * box.voxel)
+    off = max(fit_offset, fast["surface_margin_voxels"] * box.voxel)
     step = fast["step_voxels"] * box.voxel
 
     # the segments' far ends: the sensor-visible points (every stride-th pixel) and their normals
@@ -330,8 +353,13 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
         p_in, pick = p_in[reach], pick[reach.cpu().numpy()]
     cand_pts.append(p_in)
     cand_pix += [(int(pix[i, 1]), int(pix[i, 0])) for i in pick]
-    if s.beyond_view_deg > 0:
-        dirs = torch.as_tensor(beyond_view_directions(sensor, s.beyond_view_deg), dtype=torch.float32, device=dev)
+    beyond = s.beyond_view_deg
+    if beyond is None:          # the laser is known to reach as far as the capture's own spots
+        beyond = min(degrees_beyond_view(sensor, data.spot_points.cpu().numpy()), 60.0)
+        if beyond > 0:
+            notes.append(f"candidates up to {beyond:.0f} deg beyond the view: as far as the capture's spots")
+    if beyond > 0:
+        dirs = torch.as_tensor(beyond_view_directions(sensor, beyond), dtype=torch.float32, device=dev)
         land = _landing_points(box, cls, data.laser_origin, dirs, step)
         land = land[torch.isfinite(land).all(1)]
         if len(land):
@@ -339,8 +367,7 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
             cand_pts.append(land[torch.as_tensor(keep, device=dev)])
             cand_pix += [None] * len(keep)
         else:
-            notes.append(f"no laser direction within {s.beyond_view_deg} deg beyond the view lands on the fit's "
-                         f"surface")
+            notes.append(f"no laser direction within {beyond:.0f} deg beyond the view lands on the fit's surface")
     cand = torch.cat(cand_pts)
     cand_nrm = spot_normals(box, opacity, cand, pts_all, nrm_all)
     end_m = _path_range_end(dataset) if measurements is None else None

@@ -69,7 +69,7 @@ def visible_surface(data: RayData, box: GridBox):
     return x[valid], normals[valid]
 
 
-def _dilate_cube(x: torch.Tensor, r: int) -> torch.Tensor:
+def dilate_cube(x: torch.Tensor, r: int) -> torch.Tensor:
     """Maximum over the (2 r + 1)^3 cube around each voxel of x (nx, ny, nz), one axis at a time (the
     same as one 3-D max pool, a fifth of the time for r = 3)."""
     x = x[None, None]
@@ -103,7 +103,7 @@ def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: floa
     occ = torch.zeros(box.shape, dtype=torch.float32)
     occ[tuple(torch.from_numpy(idx[inside]).T)] = 1.0
     r = int(math.ceil(half_width_voxels)) + 1
-    occ = _dilate_cube(occ, r) > 0
+    occ = dilate_cube(occ, r) > 0
     cand = torch.nonzero(occ, as_tuple=False).numpy()
     centres = lo + (cand + 0.5) * box.voxel
     tree = cKDTree(pts)
@@ -182,7 +182,7 @@ def in_front_of_visible_surface(surface, box: GridBox, empty: torch.Tensor,
         idx = np.floor((pts + s * box.voxel * nrm - lo) / box.voxel).astype(np.int64)
         idx = idx[np.all((idx >= 0) & (idx < shape), 1)]
         out[tuple(torch.from_numpy(idx).T)] = 1.0
-    return (_dilate_cube(out, 1) > 0) & empty.cpu()
+    return (dilate_cube(out, 1) > 0) & empty.cpu()
 
 
 def seen_free(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_axis: str,
@@ -192,6 +192,28 @@ def seen_free(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_
     free = seen_free_points(data, camera_to_world, fov_rad, fov_axis, box.voxel, depth,
                             corner_planes)(pts, margin_voxels * box.voxel)
     return torch.from_numpy(free.reshape(box.shape))
+
+
+def seen_depth(data: RayData, fc) -> torch.Tensor:
+    """Per-pixel range the sensor saw through (FastConfig `fc`): as the camera carving, not past a thin part's
+    earliest return."""
+    depth = data.visible_depth
+    if fc.nearest_free and data.nearest_depth is not None:
+        depth = torch.fmin(data.nearest_depth, depth)
+    return depth
+
+
+def coarse_sensor_seen_free(data: RayData, box: GridBox, fc, meta: dict) -> torch.Tensor | None:
+    """`seen_free` voxels when the sensor is coarse for `box` (neighbouring pixel rays farther apart at the far
+    surfaces than `fc.carve_seen_free_beyond_voxels`: the camera carves between its rays too), else None.
+    meta: camera_to_world, fov_rad, fov_axis. The fit's start field and the spot advisor both label this way."""
+    from .init import far_pixel_spacing         # init imports this module
+
+    spacing = far_pixel_spacing(data)
+    if spacing is None or spacing <= fc.carve_seen_free_beyond_voxels * box.voxel:
+        return None
+    return seen_free(data, box, meta["camera_to_world"], meta["fov_rad"], meta["fov_axis"], fc.surface_margin_voxels,
+                     seen_depth(data, fc), fc.seen_free_corners)
 
 
 def seen_free_points(data: RayData, camera_to_world, fov_rad: float, fov_axis: str, voxel: float,

@@ -12,8 +12,8 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from torch_recon.recon.fields import GridBox  # noqa: E402
-from torch_recon.recon.init import _accumulate, _marching_cells  # noqa: E402
-from torch_recon.recon.visible_surface_init import _dilate_cube  # noqa: E402
+from torch_recon.recon.init import _accumulate, marching_cells  # noqa: E402
+from torch_recon.recon.visible_surface_init import dilate_cube  # noqa: E402
 from torch_recon.recon.sampler import marching_intervals  # noqa: E402
 
 
@@ -58,7 +58,7 @@ def test_marching_counts_equal_one_padded_march(core):
 def test_marching_cells_yield_each_segment_once():
     box = GridBox([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], 16)
     seg = _segments(300, seed=1)
-    rays = torch.cat([r for r, _, _ in _marching_cells(box, *seg, 0.03, chunk_samples=500)])
+    rays = torch.cat([r for r, _, _ in marching_cells(box, *seg, 0.03, chunk_samples=500)])
     assert torch.equal(torch.sort(rays).values, torch.arange(300))
 
 
@@ -66,4 +66,4 @@ def test_marching_cells_yield_each_segment_once():
 def test_cube_dilation_equals_a_3d_max_pool(r):
     x = (torch.rand(9, 14, 11, generator=torch.Generator().manual_seed(r)) > 0.97).float()
     ref = torch.nn.functional.max_pool3d(x[None, None], 2 * r + 1, 1, r)[0, 0]
-    assert torch.equal(_dilate_cube(x, r), ref)
+    assert torch.equal(dilate_cube(x, r), ref)

@@ -13,7 +13,7 @@ from torch_recon.recon.data import RayData  # noqa: E402
 from torch_recon.recon.fields import GridBox  # noqa: E402
 from torch_recon.recon.hull_trim import unneeded_hull  # noqa: E402
 from torch_recon.recon.init import NEAREST, RESTORED, evidence_grid  # noqa: E402
-from torch_recon.recon.visible_surface_init import _dilate_cube  # noqa: E402
+from torch_recon.recon.visible_surface_init import dilate_cube  # noqa: E402
 
 POST_XY, POST_R, POST_TOP = np.array([0.55, 0.45]), 0.02, 0.6
 
@@ -95,7 +95,7 @@ def test_hull_no_shadow_needs_is_trimmed_the_post_stays():
     label, shadow = evidence_grid(data, box, carve_spacing_voxels=0.5, count_shadow=True, explain_shadow_rays=True,
                                   explain_camera_free=True)
     free = (label == 2) | (label == 3)
-    band = _dilate_cube((label == 1).float(), 1) > 0
+    band = dilate_cube((label == 1).float(), 1) > 0
     trimmed = unneeded_hull(free, label == 0, shadow, band, 8)
     column, far = _column_and_far(box)
     lump = (label == 0) & far & (box.centres()[..., 2] > 0.2)

@@ -83,6 +83,55 @@ def test_cli_refuses_bad_input_with_one_line(left_fit, tmp_path, capsys):
 
     _, out = left_fit
     assert main(["advise-spots", str(tmp_path), str(out), "--add", "0"]) == 2
+    # the inputs are checked in argument order: a missing dataset is named before the missing fit
     assert main(["advise-spots", str(tmp_path / "none"), str(tmp_path / "nofit")]) == 2
+    assert main(["advise-spots", str(tmp_path), str(tmp_path / "nofit")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 2 and "add" in err[0] and "volume.npz" in err[1]
+    assert len(err) == 3 and "add" in err[0]
+    assert "none: no such dataset" in err[1] and "volume.npz" not in err[1]
+    assert "nofit" in err[2] and "volume.npz" in err[2]
+
+
+def test_a_coarse_sensor_hull_leaves_out_what_the_sensor_saw_through():
+    """The advisor labels voxels as the fit's start field does: with pixel rays farther apart than
+    fast.carve_seen_free_beyond_voxels the space between them that the sensor saw through is free, not hull."""
+    import dataclasses
+
+    from torch_recon.recon.config import FastConfig
+    from torch_recon.recon.data import build_ray_data
+    from torch_recon.recon.fields import GridBox
+    from torch_recon.recon.init import grid_bbox
+    from torch_recon.recon.spot_advice import HULL, voxel_classes
+    from torch_recon.recon.visible_surface_init import coarse_sensor_seen_free
+
+    meas = ideal_measurements(box_floor_mesh(), CAMERA, 16, 16, LEFT, fov_rad=np.deg2rad(70.0))
+    data = build_ray_data(meas)
+    fc = FastConfig(resolution=40)
+    box = GridBox(*grid_bbox(data, fc.resolution, fc.bbox_margin_voxels), fc.resolution)
+    meta = {"camera_to_world": np.asarray(meas.camera_to_world), "fov_rad": meas.fov_rad, "fov_axis": meas.fov_axis}
+    seen = coarse_sensor_seen_free(data, box, fc, meta)
+    assert seen is not None and int(seen.sum()) > 0         # the setting: 16 px is a coarse sensor on 40 voxels
+    opacity = np.ones(tuple(box.shape), np.float32)         # every voxel occupied: the labels alone decide
+    cls = voxel_classes(data, box, opacity, 0.5, dataclasses.asdict(fc), meta, fc.secondary_offset_voxels * box.voxel)
+    hull = (cls == HULL).reshape(tuple(box.shape))
+    assert int(hull.sum()) > 0 and int((hull & seen).sum()) == 0
+
+
+def test_beyond_view_none_aims_as_far_beyond_the_view_as_the_capture_s_spots():
+    """`beyond_view_deg` none: candidates beyond the image reach as far as the capture's farthest spot (a laser
+    known to scan there), measured along the image axes; none when every spot is in view. Default: in view."""
+    from types import SimpleNamespace
+
+    from torch_recon.contract.frames import look_at_c2w
+    from torch_recon.recon.spot_advice import degrees_beyond_view
+
+    assert AdviceSettings().beyond_view_deg == 0.0
+    # looking along +y with a 90 deg view: the image edge is 45 deg off-axis
+    sensor = SimpleNamespace(width=64, height=48, fov_rad=np.pi / 2, fov_axis="x",
+                             camera_to_world=look_at_c2w([0.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
+    at = lambda deg_x, deg_z: [np.tan(np.radians(deg_x)), 1.0, np.tan(np.radians(deg_z))]  # noqa: E731
+    assert degrees_beyond_view(sensor, [at(10, 5), at(-40, 0)]) == 0.0
+    assert degrees_beyond_view(sensor, [at(10, 5), at(-60, 0)]) == pytest.approx(15.0, abs=1e-6)
+    half_y = np.degrees(np.arctan(24 / 32))          # the image's half height, at the same focal length
+    assert degrees_beyond_view(sensor, [at(0, half_y + 7)]) == pytest.approx(7.0, abs=1e-6)
+    assert degrees_beyond_view(sensor, [[0.0, -1.0, 0.0]]) == 0.0      # behind the sensor
