@@ -96,6 +96,14 @@ class FastConfig:
                                       # the blocker landed on the voxel beside it. Session 10, six scenes 0 -> 1.5:
                                       # F@2cm -0.001..+0.006, hidden R -0.002..+0.008, L1 lower on all six; 0: off
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
+    lit_path_tolerance_voxels: float = 0.0  # > 0: a lit pair whose measured path is farther than this (voxels; at
+                                      # least half a time bin) from the path through its pixel's visible point x got
+                                      # its light from another surface in the pixel (a depth edge: dark-room's box
+                                      # top edge, the floor 1 m behind it): it carves from where its own path puts
+                                      # the surface on the pixel ray and training leaves it out (recon/data.py
+                                      # unexplained_lit). 1.0, session 12: dark-room F@2cm 0.863 -> 0.903, cave-chair
+                                      # 0.929 -> 0.941, thin-structures hidden R 0.865 -> 0.859 (docs/reconstruction.md
+                                      # "Lit pairs at depth edges"); 0: off (default until thin-structures is settled)
     surface_margin_voxels: float = 1.0  # camera free space stops this far before the visible surface
     occupancy_threshold: float = 0.01  # cells whose neighbourhood has sigma * voxel below this are skipped
     occupancy_update_every: int = 25  # steps between occupancy refreshes
@@ -294,6 +302,9 @@ class FitConfig:
         if not (math.isfinite(self.fast.max_voxels_per_pixel) and self.fast.max_voxels_per_pixel >= 0):
             raise SettingsError("fast.max_voxels_per_pixel", f"expected voxels >= 0 (0: off), got "
                                                              f"{self.fast.max_voxels_per_pixel}")
+        if not (math.isfinite(self.fast.lit_path_tolerance_voxels) and self.fast.lit_path_tolerance_voxels >= 0):
+            raise SettingsError("fast.lit_path_tolerance_voxels",
+                                f"expected voxels >= 0 (0: off), got {self.fast.lit_path_tolerance_voxels}")
         if not self.fast.explain_lead_voxels >= 0:
             raise SettingsError("fast.explain_lead_voxels",
                                 f"expected voxels >= 0 (0: off), got {self.fast.explain_lead_voxels}")

@@ -34,6 +34,7 @@ class RayData:
                                                # (<= visible_depth: a thin part in front); None: unknown
     amplitude: torch.Tensor | None = None  # (S, P) matched-filter peak of each spot's strongest return (NaN where
                                            # not lit); None: unknown (recon/thin_parts.py part_coverage)
+    bin_width_m: float | None = None   # the sensor's time bin as a path length (m); None: unknown
 
     @property
     def n_pairs(self) -> int:
@@ -135,4 +136,48 @@ def build_ray_data(meas: Measurements) -> RayData:
                    shadowed=torch.as_tensor(np.concatenate(shd)), visible_depth=f32(vd), height=h, width=w,
                    nearest_depth=None if meas.nearest_depth is None else f32(np.fmin(
                        np.asarray(meas.nearest_depth, np.float32).reshape(-1), vd)),
-                   amplitude=f32(np.stack(amp)) if len(amp) == len(meas.spots) else None)
+                   amplitude=f32(np.stack(amp)) if len(amp) == len(meas.spots) else None,
+                   bin_width_m=float(meas.bin_width_m))
+
+
+def unexplained_lit(data: RayData, tolerance_m: float) -> torch.Tensor:
+    """(N,) bool: lit pairs whose measured path is more than `tolerance_m` from the path through their pixel's
+    visible point x (the fused depth). Their light came from another surface in the pixel's footprint: at a
+    depth edge the spots that light the surface behind return a path 0.4-1.3 m longer (dark-room's box top in
+    front of the floor), so x -> l is not the segment the light took. False where the depth is unknown."""
+    from .losses import predicted_path
+    d = data.visible_depth[data.pair_pixel]
+    x = data.sensor_origin + data.pixel_dirs[data.pair_pixel] * d[:, None]
+    via_x = predicted_path(d, torch.linalg.vector_norm(data.spot_points[data.pair_spot] - x, dim=-1),
+                           data.laser_to_spot[data.pair_spot])
+    return data.lit & ((data.path - via_x).abs() > tolerance_m)     # NaN compares False
+
+
+def own_ranges(data: RayData, pairs) -> torch.Tensor:
+    """Range along each pair's pixel ray where its own path puts the surface (the ellipsoid with foci l and c;
+    NaN where there is none)."""
+    from ..visible_depth import ellipsoid_range
+    t = torch.full(pairs.shape, float("nan"), dtype=data.visible_depth.dtype, device=pairs.device)
+    for k in torch.unique(data.pair_spot[pairs]).tolist():
+        sel = data.pair_spot[pairs] == k
+        p = pairs[sel]
+        t[sel] = ellipsoid_range(data.path[p].double(), data.spot_points[k].double(), data.laser_origin.double(),
+                                 data.sensor_origin.double(), data.pixel_dirs[data.pair_pixel[p]].double())[0].to(t.dtype)
+    return t
+
+
+def lit_path_tolerance(data: RayData, voxel: float, tolerance_voxels: float) -> float:
+    """`unexplained_lit`'s tolerance (m) for `fast.lit_path_tolerance_voxels` (0: off): never below half a time
+    bin, the error of one spot's sub-bin path (coarse bins must not turn every lit pair into an outlier)."""
+    if tolerance_voxels <= 0:
+        return 0.0
+    return max(tolerance_voxels * voxel, 0.5 * (data.bin_width_m or 0.0))
+
+
+def without_lit(data: RayData, pairs: torch.Tensor) -> RayData:
+    """A copy of `data` (tensors shared except lit / path) in which `pairs` (bool (N,)) are neither lit nor
+    shadowed: the losses skip them."""
+    import dataclasses
+    return dataclasses.replace(data, lit=data.lit & ~pairs,
+                               path=torch.where(pairs, torch.full_like(data.path, float("nan")), data.path),
+                               _lit=None)

@@ -5,7 +5,8 @@ Evidence, voxel by voxel (priority top to bottom):
    holding a pixel's nearest surface where its strongest return lies behind it (a leg under a pixel wide in
    front of the floor: `thin_part_points`), and the voxels joining it to its neighbours' at the same range;
 2. crossed by a camera ray before its visible surface (before its nearest surface): free;
-3. crossed by at least `carve_min_lit` lit secondary rays x -> l: free (shadow carving);
+3. crossed by at least `carve_min_lit` lit secondary rays x -> l: free (shadow carving; a pair whose path
+   disagrees with its pixel's depth carves from where its own path puts the surface, `unexplained_lit`);
 4. otherwise, inside the sensor's view (hidden from the sensor and never lit through): occupied, the
    shadow hull of BF Lidar; outside the view (no measurement reaches it): the planes bounding the
    observation continue there (`unobserved.py`). Hull voxels no shadowed ray crosses, connected to measured
@@ -24,7 +25,7 @@ import numpy as np
 import torch
 
 from ..contract.errors import UnconstrainedMeasurementsError
-from .data import RayData, pixel_angle
+from .data import RayData, lit_path_tolerance, own_ranges, pixel_angle, unexplained_lit
 from .fields import DensityGrid, GridBox
 from .sampler import ray_box
 from .thin_parts import thin_part_signed_distance, thin_part_voxels
@@ -112,19 +113,28 @@ def _accumulate(box: GridBox, origins, dirs, near, far, step, counts, chunk_samp
         counts += torch.bincount(flat.masked_fill_(~keep, n).long().reshape(-1), minlength=n + 1)[:n]
 
 
-def _segment_counts(data: RayData, box: GridBox, mask, off, step, core):
+def _segment_counts(data: RayData, box: GridBox, mask, off, step, core, own_range=None):
     """Per-voxel count of marching samples of the secondary segments x -> l of the pairs in `mask`."""
     counts = torch.zeros(int(np.prod(box.shape)), dtype=torch.long, device=data.pixel_dirs.device)
-    _accumulate(box, *_segments(data, mask, off), step, counts, core=core)
+    _accumulate(box, *_segments(data, mask, off, own_range), step, counts, core=core)
     return counts
 
 
-def _segments(data: RayData, mask, off):
+def _segments(data: RayData, mask, off, own_range=None):
     """Secondary segments x -> l of the pairs in `mask` (finite visible depth, longer than 2 `off`):
-    origins, unit directions, near, far."""
+    origins, unit directions, near, far. own_range: bool (N,), pairs whose x is where their own path puts the
+    surface on the pixel ray instead of the pixel's visible point (`data.unexplained_lit`: their light came from
+    another surface in the pixel); left out where that range does not exist."""
     pairs = torch.nonzero(mask & torch.isfinite(data.visible_depth[data.pair_pixel]), as_tuple=False).squeeze(1)
+    depth = data.visible_depth[data.pair_pixel[pairs]]
+    if own_range is not None and bool(own_range[pairs].any()):
+        sel = own_range[pairs]
+        depth = depth.clone()
+        depth[sel] = own_ranges(data, pairs[sel])
+        ok = torch.isfinite(depth)
+        pairs, depth = pairs[ok], depth[ok]
     px = data.pair_pixel[pairs]
-    x = data.sensor_origin + data.pixel_dirs[px] * data.visible_depth[px, None]
+    x = data.sensor_origin + data.pixel_dirs[px] * depth[:, None]
     v = data.spot_points[data.pair_spot[pairs]] - x
     length = torch.linalg.vector_norm(v, dim=-1)
     good = length > 2 * off
@@ -211,13 +221,16 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
                   count_shadow: bool = False, carve_spacing_voxels: float = 1.0, explain_shadow_rays: bool = False,
                   explain_camera_free: bool = False, explain_score: str = "ratio", nearest_free: bool = False,
                   nearest_surface: bool = False, seen_free=None, thin_part_edges: bool = True,
-                  thin_part_centre: str = "off", explain_lead_voxels: float = 0.0, thin_points=None):
+                  thin_part_centre: str = "off", explain_lead_voxels: float = 0.0, thin_points=None,
+                  lit_path_tolerance_m: float = 0.0):
     """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
     blocker of a shadowed segment (with `explain_shadow_rays`), 6 a part under a pixel wide (with
     `nearest_surface`: `thin_part_points`); and the count of shadowed secondary segments through each voxel
     (with `count_shadow`). With `nearest_free` a camera ray is free only up to its pixel's nearest depth.
     seen_free: optional bool (nx, ny, nz), voxels the pixels' footprints saw through (camera-free as well).
-    thin_points: `thin_parts.thin_part_cloud` of these settings when already computed."""
+    thin_points: `thin_parts.thin_part_cloud` of these settings when already computed.
+    lit_path_tolerance_m > 0: a lit pair whose path disagrees with its pixel's visible point by more carves from
+    where its own path puts the surface on the pixel ray (`unexplained_lit`)."""
     dev = data.pixel_dirs.device
     n = int(np.prod(box.shape))
     step = step_voxels * box.voxel
@@ -253,7 +266,8 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     on_sub = torch.zeros(data.height * data.width, dtype=torch.bool, device=dev)
     on_sub[sub] = True
     off = max(secondary_offset_m, surface_margin_voxels * box.voxel)
-    lit_count = _segment_counts(data, box, data.lit & on_sub[data.pair_pixel], off, step, carve_core)
+    own = unexplained_lit(data, lit_path_tolerance_m) if lit_path_tolerance_m > 0 else None
+    lit_count = _segment_counts(data, box, data.lit & on_sub[data.pair_pixel], off, step, carve_core, own)
     consistent = explain_shadow_rays and bool(data.shadowed.any())
     shadow_count = (_segment_counts(data, box, data.shadowed & on_sub[data.pair_pixel], off, step, 0.5)
                     if count_shadow or consistent else torch.zeros_like(lit_count))
@@ -329,7 +343,8 @@ def configured_evidence_grid(data: RayData, box: GridBox, cfg, secondary_offset_
                          nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface,
                          seen_free=seen_free, thin_part_edges=cfg.thin_part_edges,
                          thin_part_centre=cfg.thin_part_centre, explain_lead_voxels=cfg.explain_lead_voxels,
-                         thin_points=thin_points)
+                         thin_points=thin_points,
+                         lit_path_tolerance_m=lit_path_tolerance(data, box.voxel, cfg.lit_path_tolerance_voxels))
 
 
 def in_view(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_axis: str) -> torch.Tensor:

@@ -12,7 +12,7 @@ import torch
 import torch.nn.functional as F
 
 from .config import FitConfig
-from .data import RayData
+from .data import RayData, lit_path_tolerance, unexplained_lit, without_lit
 from .fields import DensityGrid, GridBox
 from .init import grid_bbox, in_view, initial_grid
 from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total_loss
@@ -33,6 +33,10 @@ class ReconstructionModel:
     def after_step(self, step: int) -> bool:
         """Called after each optimiser step (`step` steps done); True when the model replaced its parameters."""
         return False
+
+    def training_data(self, data: RayData) -> RayData:
+        """The pairs the losses fit (all of `data` unless a model leaves some out)."""
+        return data
 
 
 def pair_loss(model: ReconstructionModel, data: RayData, idx, step: int, total: int, cfg: FitConfig, offset: float):
@@ -71,6 +75,11 @@ class FastModel(ReconstructionModel):
         self._thin_points = None    # (voxel, thin_part_cloud) of the latest grid: the start field and `thin_parts`
         self.level = 0 if self.fc.coarse_fraction > 0 and self.fc.coarse_resolution < self.fc.resolution else 1
         self.grid, self.free = self._initial(self.fc.coarse_resolution if self.level == 0 else self.fc.resolution)
+        # lit pairs whose light came from another surface in the pixel: the start field carved from where their
+        # own path puts it; training, which pairs each with the rendered depth, leaves them out
+        voxel = float(torch.as_tensor(self.bbox[1] - self.bbox[0]).max()) / self.fc.resolution
+        tol = lit_path_tolerance(data, voxel, self.fc.lit_path_tolerance_voxels)
+        self._training_data = without_lit(data, unexplained_lit(data, tol)) if tol > 0 else data
         self._hook = None
         self._normal_cells = None
         self._set_measured_mask(self.grid.raw)
@@ -85,6 +94,9 @@ class FastModel(ReconstructionModel):
         seen = coarse_sensor_seen_free(self.data, box, self.fc, self.meta)
         return initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box),
                             self.visible_surface(box), seen_free=seen, thin_points=self.thin_points(box))
+
+    def training_data(self, data: RayData) -> RayData:
+        return self._training_data if data is self.data else data
 
     def visible_surface(self, box):
         """`visible_surface` (points, normals) for `box`; it depends on the box's voxel size only, so it

@@ -103,6 +103,7 @@ def train(model, data, cfg: FitConfig, gen: torch.Generator, out_dir=None, on_ev
     `stop_after` ends this call after that many steps (the schedule still spans cfg.total_steps)."""
     from tqdm.auto import tqdm
 
+    data = model.training_data(data)
     total = cfg.total_steps
     batch = cfg.method_settings.rays_per_batch
     res = TrainResult()
