@@ -96,14 +96,14 @@ class FastConfig:
                                       # the blocker landed on the voxel beside it. Session 10, six scenes 0 -> 1.5:
                                       # F@2cm -0.001..+0.006, hidden R -0.002..+0.008, L1 lower on all six; 0: off
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
-    lit_path_tolerance_voxels: float = 0.0  # > 0: a lit pair whose measured path is farther than this (voxels; at
+    lit_path_tolerance_voxels: float = 1.0  # > 0: a lit pair whose measured path is farther than this (voxels; at
                                       # least half a time bin) from the path through its pixel's visible point x got
                                       # its light from another surface in the pixel (a depth edge: dark-room's box
                                       # top edge, the floor 1 m behind it): it carves from where its own path puts
                                       # the surface on the pixel ray and training leaves it out (recon/data.py
-                                      # unexplained_lit). 1.0, session 12: dark-room F@2cm 0.863 -> 0.903, cave-chair
-                                      # 0.929 -> 0.941, thin-structures hidden R 0.865 -> 0.859 (docs/reconstruction.md
-                                      # "Lit pairs at depth edges"); 0: off (default until thin-structures is settled)
+                                      # unexplained_lit). Session 12, with the 2-voxel hull inset below, six scenes:
+                                      # dark-room F@2cm 0.863 -> 0.902, cave-chair 0.929 -> 0.944, none worse
+                                      # (docs/reconstruction.md "Lit pairs at depth edges"); 0: off
     surface_margin_voxels: float = 1.0  # camera free space stops this far before the visible surface
     occupancy_threshold: float = 0.01  # cells whose neighbourhood has sigma * voxel below this are skipped
     occupancy_update_every: int = 25  # steps between occupancy refreshes
@@ -198,14 +198,15 @@ class FastConfig:
     mesh_level_shift_voxels: float = 0.0  # the mesh's level moves this far inward (voxels along the ramp). 0.1 on the
                                           # six scenes (session 9): F@2cm +0.001..+0.017, hidden recall -0.004..-0.023;
                                           # off (docs/reconstruction.md "Where the object F-score is lost")
-    mesh_hull_inset_voxels: float = 0.0   # the shadow hull's binary boundary (occupied next to free) is placed this far
-                                          # inside the voxel face. 0.35: F@2cm +0.005..+0.025 and hidden recall up on five
-                                          # scenes, organic-occluded -0.034 / -0.045 (its hull lies inside the blob); off
-    mesh_hull_inset_max_voxels: int = 0   # ... only where the hull is at most this many voxels thick across the face
+    mesh_hull_inset_voxels: float = 0.35  # the shadow hull's binary boundary (occupied next to free) is placed this
+                                          # far inside the voxel face, where the hull is 2 voxels thick (below); 0: off.
+                                          # Everywhere (session 9): organic-occluded -0.034 / -0.045 (its hull lies
+                                          # inside the blob), so limited to 2-voxel runs
+    mesh_hull_inset_max_voxels: int = 2   # ... only where the hull is at most this many voxels thick across the face
                                           # (free again beyond: a 1 cm lamp-shade wall in two voxels); 0: everywhere
-    mesh_hull_inset_min_voxels: int = 1   # ... and at least this many (2: a one-voxel leg or blocker keeps its faces).
-                                          # inset 0.35, runs 2..2 (session 12): thin-structures F@2cm 0.816 -> 0.838,
-                                          # dark-room hidden R 0.799 -> 0.792 (its chair), so off (docs/reconstruction.md)
+    mesh_hull_inset_min_voxels: int = 2   # ... and at least this many (2: a one-voxel leg or blocker keeps its faces).
+                                          # Session 12, with lit_path_tolerance_voxels 1: thin-structures F@2cm 0.816 ->
+                                          # 0.837; alone it cost dark-room's chair hidden R 0.007 (docs/reconstruction.md)
     # --- visible surfaces of the mesh (session 7) ---
     mesh_front_of_visible: bool = True  # the mesh also keeps faces facing the voxels just in front of a measured
                                         # visible point (along its normal): cave-chair start field, sensor

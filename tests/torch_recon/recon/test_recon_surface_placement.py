@@ -102,7 +102,7 @@ def test_surface_placement_settings_are_range_checked():
 
 def test_fast_model_surface_volume_applies_the_settings():
     """The fast model's mesh field: the level moves by shift x surface_slope; the inset lowers only saturated
-    occupied voxels next to saturated free ones; both off by default."""
+    occupied voxels next to saturated free ones. The shift is off by default, the inset on (2-voxel hull runs)."""
     from tests.support.recon_fixtures import box_floor_measurements
     from tests.torch_recon.recon.test_recon_fit import small_config
     from tests.torch_recon.recon.test_recon_freeze import _meta
@@ -111,7 +111,8 @@ def test_fast_model_surface_volume_applies_the_settings():
 
     meas = box_floor_measurements(32)
     cfg = small_config(steps=1)
-    assert cfg.fast.mesh_level_shift_voxels == 0 and cfg.fast.mesh_hull_inset_voxels == 0
+    assert cfg.fast.mesh_level_shift_voxels == 0 and cfg.fast.mesh_hull_inset_voxels == 0.35
+    cfg.fast.mesh_hull_inset_voxels, cfg.fast.mesh_hull_inset_max_voxels, cfg.fast.mesh_hull_inset_min_voxels = 0.0, 0, 1
     model = FastModel(build_ray_data(meas), cfg, _meta(meas))
     vol0, level0 = model.surface_volume()
     cfg.fast.mesh_level_shift_voxels = 0.1
