@@ -8,7 +8,7 @@ REPO = Path(__file__).resolve().parents[1]
 TESTS = REPO / "tests"
 # Tests of the whole chain or of repository files rather than of one package live at tests/ itself.
 WHOLE_REPO_TESTS = {"test_faults.py", "test_stress_fast.py", "test_stress_slow.py", "test_makefile.py",
-                    "test_layout.py"}
+                    "test_layout.py", "test_example_two_pass.py"}
 
 
 def test_every_test_file_sits_under_the_package_it_tests():
