@@ -95,6 +95,10 @@ class FastConfig:
                                       # 1.5 = the whole offset): a leg the sensor sees shadows its own points, and
                                       # the blocker landed on the voxel beside it. Session 10, six scenes 0 -> 1.5:
                                       # F@2cm -0.001..+0.006, hidden R -0.002..+0.008, L1 lower on all six; 0: off
+    explain_neighbour_power: float = 0.0  # > 0: a shadowed segment's blocker ranks by shadowed / lit crossings
+                                      # times (1 + its occupied 26-neighbours) ^ this: a part the carving took
+                                      # touches what stayed of it, the lit inside of the lamp shade does not
+                                      # (shadow_blockers.py); 0: off
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
     lit_path_tolerance_voxels: float = 1.0  # > 0: a lit pair whose measured path is farther than this (voxels; at
                                       # least half a time bin) from the path through its pixel's visible point x got
@@ -294,6 +298,9 @@ class FitConfig:
                                                             f"{self.fast.thin_part_training!r}")
         if self.fast.explain_score not in ("ratio", "spots"):
             raise SettingsError("fast.explain_score", f"expected 'ratio' or 'spots', got {self.fast.explain_score!r}")
+        if not (math.isfinite(self.fast.explain_neighbour_power) and self.fast.explain_neighbour_power >= 0):
+            raise SettingsError("fast.explain_neighbour_power",
+                                f"expected a power >= 0 (0: off), got {self.fast.explain_neighbour_power}")
         if not math.isfinite(self.fast.thin_part_raw) or self.fast.thin_part_raw < self.fast.raw_occupied:
             raise SettingsError("fast.thin_part_raw", f"expected a number >= fast.raw_occupied "
                                                        f"({self.fast.raw_occupied}), got {self.fast.thin_part_raw}")

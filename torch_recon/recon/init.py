@@ -28,6 +28,7 @@ from ..contract.errors import UnconstrainedMeasurementsError
 from .data import RayData, lit_path_tolerance, own_ranges, pixel_angle, unexplained_lit
 from .fields import DensityGrid, GridBox
 from .sampler import ray_box
+from .shadow_blockers import blocker_weight
 from .thin_parts import thin_part_signed_distance, thin_part_voxels
 from .visible_surface_init import dilate_cube, surface_offset, surface_signed_distance, visible_surface
 
@@ -148,7 +149,8 @@ NEAREST = 6
 
 
 def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count, origins, dirs, near, far, step,
-                    restorable=(3,), chunk_samples: int = 1 << 20, score=None, lead: float = 0.0) -> int:
+                    restorable=(3,), chunk_samples: int = 1 << 20, score=None, lead: float = 0.0,
+                    weight=None) -> int:
     """Make every shadowed segment blocked (in place on the flat `label`): a shadowed segment whose voxels
     were all carved free gets back the carved voxel along it with the most shadowed and fewest free
     crossings (shadow / (lit + 1)). Carving through whole voxels takes thin parts
@@ -158,11 +160,14 @@ def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count,
     `near` (nearer its surface point x), where only a carved voxel counts: a point on a part seen by the
     sensor is shadowed by the part itself (its own voxel and the next), inside the offset the segments
     skip next to x; without the lead the blocker lands on the first voxel past the offset, beside the
-    part. Returns the number of voxels restored."""
+    part. `weight` (flat, float > 0): multiplies the ranking (`shadow_blockers.blocker_weight`). Returns the
+    number of voxels restored."""
     if origins.shape[0] == 0:
         return 0
     if score is None:
         score = shadow_count.float() / (free_count.float() + 1.0)
+    if weight is not None:
+        score = score * weight
     can = torch.zeros(8, dtype=torch.bool, device=label.device)
     can[list(restorable)] = True
     lead = min(max(float(lead), 0.0), float(near.min()))
@@ -222,7 +227,7 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
                   explain_camera_free: bool = False, explain_score: str = "ratio", nearest_free: bool = False,
                   nearest_surface: bool = False, seen_free=None, thin_part_edges: bool = True,
                   thin_part_centre: str = "off", explain_lead_voxels: float = 0.0, thin_points=None,
-                  lit_path_tolerance_m: float = 0.0):
+                  lit_path_tolerance_m: float = 0.0, explain_neighbour_power: float = 0.0):
     """Per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
     blocker of a shadowed segment (with `explain_shadow_rays`), 6 a part under a pixel wide (with
     `nearest_surface`: `thin_part_points`); and the count of shadowed secondary segments through each voxel
@@ -230,7 +235,8 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     seen_free: optional bool (nx, ny, nz), voxels the pixels' footprints saw through (camera-free as well).
     thin_points: `thin_parts.thin_part_cloud` of these settings when already computed.
     lit_path_tolerance_m > 0: a lit pair whose path disagrees with its pixel's visible point by more carves from
-    where its own path puts the surface on the pixel ray (`unexplained_lit`)."""
+    where its own path puts the surface on the pixel ray (`unexplained_lit`).
+    explain_neighbour_power > 0: a restored blocker is looked for next to what stayed occupied (`blocker_weight`)."""
     dev = data.pixel_dirs.device
     n = int(np.prod(box.shape))
     step = step_voxels * box.voxel
@@ -284,11 +290,12 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
             score = (spot_crossings(data, box, sh, off, step).float()
                      / (spot_crossings(data, box, data.lit & on_sub[data.pair_pixel], off, step, carve_core) + 1.0))
         lead = explain_lead_voxels * box.voxel
+        weight = blocker_weight(label.reshape(box.shape), explain_neighbour_power)
         if explain_camera_free:     # a part thinner than a pixel: the pixel ray saw past it
             explain_shadows(box, label, lit_count + cam_free, shadow_count, *seg, step, restorable=(2, 3),
-                            score=score, lead=lead)
+                            score=score, lead=lead, weight=weight)
         else:
-            explain_shadows(box, label, lit_count, shadow_count, *seg, step, score=score, lead=lead)
+            explain_shadows(box, label, lit_count, shadow_count, *seg, step, score=score, lead=lead, weight=weight)
     return label.reshape(box.shape), shadow_count.reshape(box.shape)
 
 
@@ -344,7 +351,8 @@ def configured_evidence_grid(data: RayData, box: GridBox, cfg, secondary_offset_
                          seen_free=seen_free, thin_part_edges=cfg.thin_part_edges,
                          thin_part_centre=cfg.thin_part_centre, explain_lead_voxels=cfg.explain_lead_voxels,
                          thin_points=thin_points,
-                         lit_path_tolerance_m=lit_path_tolerance(data, box.voxel, cfg.lit_path_tolerance_voxels))
+                         lit_path_tolerance_m=lit_path_tolerance(data, box.voxel, cfg.lit_path_tolerance_voxels),
+                         explain_neighbour_power=cfg.explain_neighbour_power)
 
 
 def in_view(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_axis: str) -> torch.Tensor:
