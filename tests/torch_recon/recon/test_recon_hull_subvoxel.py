@@ -64,3 +64,30 @@ def test_shrink_settings_refused_on_one_line(key, bad):
     with pytest.raises(SettingsError, match=f"fast.{key}"):
         override(FitConfig(mode="fast"), [f"fast.{key}={bad}"])
     assert override(FitConfig(mode="fast"), ["fast.mesh_hull_shrink_voxels=0.5"]).fast.mesh_hull_shrink_voxels == 0.5
+
+
+def test_fast_model_moves_only_the_hidden_hull_and_only_when_asked():
+    """Box on a floor: the movable voxels are the shadow hull's boundary (behind the box, out of the sensor's
+    view), none on the measured floor, walls or the box's seen faces; off by default."""
+    from tests.support.recon_fixtures import BOX_HI, BOX_LO, box_floor_measurements
+    from tests.torch_recon.recon.test_recon_fit import small_config
+    from tests.torch_recon.recon.test_recon_freeze import _meta
+    from torch_recon.recon.data import build_ray_data
+    from torch_recon.recon.models import FastModel
+
+    meas = box_floor_measurements(32)
+    cfg = small_config(steps=1)
+    assert cfg.fast.mesh_hull_shrink_voxels == 0
+    model = FastModel(build_ray_data(meas), cfg, _meta(meas))
+    vol, level = model.surface_volume()
+    assert model.mesh_inward(vol, level) is None
+    cfg.fast.mesh_hull_shrink_voxels = 0.4
+    movable, metres, steps = model.mesh_inward(vol, level)
+    assert movable.any() and metres == pytest.approx(0.4 * model.grid.box.voxel) and steps > 0
+    centres = model.grid.box.centres().numpy()[movable]
+    # the hull behind the box's seen front face (its back, the floor its shadow hides), not the measured surfaces
+    assert (centres[:, 1] > BOX_LO[1] + model.grid.box.voxel).mean() > 0.9
+    data = build_ray_data(meas)
+    seen = (data.sensor_origin + data.pixel_dirs * data.visible_depth[:, None])[torch.isfinite(data.visible_depth)]
+    idx, inside = model.grid.box.cell_index(seen)
+    assert not movable[tuple(idx[inside].T.numpy())].any()      # no voxel holding a measured surface point
