@@ -166,6 +166,8 @@ def inward_smoothing(mesh, movable, max_move: float, iterations: int, lamb: floa
         v = v.copy()
         v[idx] = start[idx] + moved
         mesh.vertices = v
+    if not np.all(np.isfinite(mesh.vertices)):
+        raise MeshExportError("inward smoothing of the hull gave non-finite vertex positions")
     return mesh
 
 

@@ -17,7 +17,8 @@ import torch.nn.functional as F
 
 from .data import lit_path_tolerance, unexplained_lit
 from .hull_trim import sole_blockers
-from .init import _carving_pixel_mask, _segment_counts, _segments
+from .init import _accumulate, _carving_pixel_mask, _segment_counts, _segments
+from .sampler import ray_box
 
 #: Laplacian steps of the inward smoothing (each moves a vertex half-way to its neighbours' mean at most)
 SHRINK_ITERATIONS = 10
@@ -46,11 +47,27 @@ def hull_voxels(start_raw: torch.Tensor, raw_free: float, raw_occupied: float, l
     return hull if keep is None else hull & ~keep.to(hull.device)
 
 
-def shrinkable_hull(model, start_raw: torch.Tensor, graze_samples: int, occupied=None) -> torch.Tensor:
+def camera_free(model, box) -> torch.Tensor:
+    """Voxels (nx, ny, nz) bool a camera ray crossed before its visible surface (as `evidence_grid`'s label 2,
+    every pixel): the sensor saw through them."""
+    data, fc = model.data, model.fc
+    d = data.visible_depth
+    ok = torch.isfinite(d)
+    dirs = data.pixel_dirs[ok]
+    org = data.sensor_origin.expand_as(dirs).contiguous()
+    near, _ = ray_box(org, dirs, box.bbox_min, box.bbox_max)
+    count = torch.zeros(int(torch.tensor(box.shape).prod()), dtype=torch.long, device=dirs.device)
+    _accumulate(box, org, dirs, near, torch.maximum(d[ok] - fc.surface_margin_voxels * box.voxel, near),
+                fc.step_voxels * box.voxel, count)
+    return (count > 0).reshape(box.shape)
+
+
+def shrinkable_hull(model, start_raw: torch.Tensor, graze_samples: int, occupied=None,
+                    silhouettes: bool = True) -> torch.Tensor:
     """The hull voxels (nx, ny, nz) bool whose mesh vertices may move inward: `hull_voxels` of the start field with
     the start's own carving, still `occupied` in the mesh field (not lowered by training or the hull inset), less
     the voxels a shadowed segment grazes (crossing at most `graze_samples` marching samples of the hull:
-    `hull_trim.sole_blockers`, the shadow's edge)."""
+    `hull_trim.sole_blockers`, the shadow's edge) and, with `silhouettes`, the voxels next to camera-free ones."""
     data, fc, box = model.data, model.fc, model.grid.box
     step = fc.step_voxels * box.voxel
     off = max(model.offset_for(box.voxel), fc.surface_margin_voxels * box.voxel)     # as evidence_grid's
@@ -62,6 +79,8 @@ def shrinkable_hull(model, start_raw: torch.Tensor, graze_samples: int, occupied
     start_raw = start_raw.to(lit.device)
     hull = hull_voxels(start_raw, fc.raw_free, fc.raw_occupied, lit, keep)
     hull = hull if occupied is None else hull & occupied.to(hull.device)
+    if silhouettes:     # a face the sensor saw past is its silhouette, placed to a pixel
+        hull &= ~_next_to(camera_free(model, box).to(hull.device))
     if graze_samples > 0:
         solid = (start_raw > fc.raw_free + 1e-3).reshape(-1)
         edge = sole_blockers(box, solid, _segments(data, data.shadowed & on_sub, off), step, max_samples=graze_samples)

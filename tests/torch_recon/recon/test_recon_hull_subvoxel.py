@@ -68,7 +68,7 @@ def test_shrink_settings_refused_on_one_line(key, bad):
 
 def test_fast_model_moves_only_the_hidden_hull_and_only_when_asked():
     """Box on a floor: the movable voxels are the shadow hull's boundary (behind the box, out of the sensor's
-    view), none on the measured floor, walls or the box's seen faces; off by default."""
+    view), none on the measured floor, walls or the box's seen faces, none beside camera-free space."""
     from tests.support.recon_fixtures import BOX_HI, BOX_LO, box_floor_measurements
     from tests.torch_recon.recon.test_recon_fit import small_config
     from tests.torch_recon.recon.test_recon_freeze import _meta
@@ -77,7 +77,8 @@ def test_fast_model_moves_only_the_hidden_hull_and_only_when_asked():
 
     meas = box_floor_measurements(32)
     cfg = small_config(steps=1)
-    assert cfg.fast.mesh_hull_shrink_voxels == 0
+    assert cfg.fast.mesh_hull_shrink_voxels == 0.5      # the default since session 13
+    cfg.fast.mesh_hull_shrink_voxels = 0.0
     model = FastModel(build_ray_data(meas), cfg, _meta(meas))
     vol, level = model.surface_volume()
     assert model.mesh_inward(vol, level) is None
@@ -91,3 +92,5 @@ def test_fast_model_moves_only_the_hidden_hull_and_only_when_asked():
     seen = (data.sensor_origin + data.pixel_dirs * data.visible_depth[:, None])[torch.isfinite(data.visible_depth)]
     idx, inside = model.grid.box.cell_index(seen)
     assert not movable[tuple(idx[inside].T.numpy())].any()      # no voxel holding a measured surface point
+    from torch_recon.recon.hull_subvoxel import _next_to, camera_free
+    assert not (movable & _next_to(camera_free(model, model.grid.box)).numpy()).any()     # no silhouette face
