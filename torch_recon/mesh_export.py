@@ -67,7 +67,7 @@ def _as_numpy(volume) -> np.ndarray:
 
 def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: bool = True,
                      min_island_fraction: float = 0.01, free_space=None, smooth_iterations: int = 0,
-                     free_points=None, keep_near=None):
+                     free_points=None, keep_near=None, inward=None):
     """Marching cubes + small-island removal -> (trimesh.Trimesh in world frame, islands removed).
 
     free_space: optional bool volume on the same grid points, True where the measurements say the
@@ -80,6 +80,9 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
     keep_near: optional (points (N, 3), radius_m): a small island with a vertex within radius of one of these
     points is kept (measured thin parts: a one-voxel pole stepping diagonally between voxels falls apart into
     pieces below the island size, which are not specks).
+    inward: optional (movable (same shape as the volume, bool), max_move_m, iterations): after the Taubin passes,
+    the vertices whose voxel just inside them (half a grid step against the normal) is movable are smoothed
+    further, only inward and at most max_move_m from where they were (`inward_smoothing`).
     Faces of zero area are removed and coincident vertices merged in every case.
     """
     import trimesh
@@ -112,6 +115,11 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
         lap = trimesh.smoothing.laplacian_calculation(mesh, pinned_vertices=_small_gap_rims(mesh, PIN_GAP_EDGES))
         trimesh.smoothing.filter_taubin(mesh, lamb=0.5, nu=0.53, iterations=int(smooth_iterations),
                                         laplacian_operator=lap)
+    if inward is not None and len(mesh.faces):
+        movable, max_move, iterations = inward
+        inside = mesh.vertices - 0.5 * spacing * mesh.vertex_normals
+        g = np.clip(np.rint((inside - lo) / spacing).astype(np.int64), 0, np.array(np.shape(volume)) - 1)
+        inward_smoothing(mesh, np.asarray(movable, bool)[g[:, 0], g[:, 1], g[:, 2]], float(max_move), int(iterations))
     removed = 0
     if min_island_fraction > 0 and len(mesh.faces):
         # islands = faces connected through shared edges (as mesh.split), labelled in one pass: split builds a
@@ -133,6 +141,34 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
     if close_boundary:   # the padded ring lies just outside the box: clamp it onto the box faces
         mesh.vertices = np.clip(mesh.vertices, lo, hi)
     return _without_degenerate(mesh), removed
+
+
+def inward_smoothing(mesh, movable, max_move: float, iterations: int, lamb: float = 0.5):
+    """Umbrella-Laplacian steps (lamb each) on the `movable` vertices (bool (V,)) with every outward component
+    (along the vertex normal) removed and the total displacement clamped to `max_move` (m), in place: a
+    staircase's convex steps are cut (a visual hull over-estimates its object), its flat runs stay, and no
+    vertex leaves the side of the surface it started on by more than the clamp."""
+    import trimesh
+
+    if not np.any(movable):
+        return mesh
+    start = np.asarray(mesh.vertices, np.float64).copy()
+    lap = trimesh.smoothing.laplacian_calculation(mesh)     # row-normalised adjacency: the neighbours' mean
+    idx = np.nonzero(movable)[0]
+    for _ in range(int(iterations)):
+        v = np.asarray(mesh.vertices, np.float64)
+        n = np.asarray(mesh.vertex_normals, np.float64)[idx]
+        step = lamb * (lap.dot(v)[idx] - v[idx])
+        step -= np.maximum((step * n).sum(1), 0.0)[:, None] * n
+        moved = v[idx] + step - start[idx]
+        length = np.linalg.norm(moved, axis=1, keepdims=True)
+        moved *= np.minimum(1.0, max_move / np.maximum(length, 1e-12))
+        v = v.copy()
+        v[idx] = start[idx] + moved
+        mesh.vertices = v
+    if not np.all(np.isfinite(mesh.vertices)):
+        raise MeshExportError("inward smoothing of the hull gave non-finite vertex positions")
+    return mesh
 
 
 #: a gap in the kept surface whose rim has at most this many edges is a pin-hole (its rim is not smoothed)
@@ -299,7 +335,7 @@ def sidecar_path(out_path) -> Path:
 
 def export_mesh(volume, bbox_min, bbox_max, level, out_path, metadata=None, *, extra_formats=(), uv=True,
                 close_boundary=True, min_island_fraction=0.01, max_uv_faces=1_000_000, free_space=None,
-                smooth_iterations: int = 0, free_points=None, keep_near=None) -> ExportResult:
+                smooth_iterations: int = 0, free_points=None, keep_near=None, inward=None) -> ExportResult:
     """Volume -> mesh file(s) in the Blender world frame + `<stem>.mesh.json` with metadata.
 
     metadata: JSON-able dict from the caller (method, settings, run time, dataset hash, ...);
@@ -319,7 +355,7 @@ def export_mesh(volume, bbox_min, bbox_max, level, out_path, metadata=None, *, e
         raise MeshExportError(f"metadata must be JSON-serialisable: {exc}") from None
     mesh, removed = mesh_from_volume(volume, bbox_min, bbox_max, level, close_boundary, min_island_fraction,
                                      free_space=free_space, smooth_iterations=smooth_iterations,
-                                     free_points=free_points, keep_near=keep_near)
+                                     free_points=free_points, keep_near=keep_near, inward=inward)
     uv_done = False
     if uv and len(mesh.faces) <= max_uv_faces:
         mesh = uv_unwrap(mesh)

@@ -179,7 +179,9 @@ def _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, expo
                 files, result.mesh = export_volume(mvol, lo, hi, mlevel, staged / "mesh", result.metadata,
                                                    uv=uv, free_space=free, free_points=free_points,
                                                    smooth_iterations=cfg.mesh_smooth_iterations,
-                                                   keep_near=_thin_part_centres(model))
+                                                   keep_near=_thin_part_centres(model),
+                                                   inward=(model.mesh_inward(mvol, mlevel)
+                                                           if hasattr(model, "mesh_inward") else None))
                 result.mesh_files = {k: stage.final(v) for k, v in files.items()}
             except MeshExportError as exc:      # e.g. an early stop with nothing occupied yet
                 result.metadata["mesh_error"] = str(exc)
@@ -214,12 +216,13 @@ def _thin_part_centres(model):
 
 
 def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: dict, uv: bool = True,
-                  free_space=None, smooth_iterations: int = 0, free_points=None, keep_near=None):
+                  free_space=None, smooth_iterations: int = 0, free_points=None, keep_near=None, inward=None):
     """Marching cubes + cleanup + UVs -> .glb (+ .ply, .obj) through the shared mesh exporter.
 
     free_space (same shape as volume, bool): report only surfaces facing measured free space;
     free_points: a point test of the same (mesh_export.mesh_from_volume);
-    smooth_iterations: Taubin smoothing passes (see mesh_export.mesh_from_volume).
+    smooth_iterations: Taubin smoothing passes; inward: the hull's bounded inward smoothing (both
+    mesh_export.mesh_from_volume).
 
     Our values sit at voxel centres; the exporter's grid points span its bbox corner to corner, so
     it gets the box of the centres.
@@ -229,7 +232,8 @@ def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: d
     lo, hi = voxel_centre_box(volume, bbox_min, bbox_max)
     res = export_mesh(volume, lo, hi, level, Path(out_path).with_suffix(".glb"), metadata,
                       extra_formats=(".ply", ".obj"), uv=uv, free_space=free_space,
-                      smooth_iterations=smooth_iterations, free_points=free_points, keep_near=keep_near)
+                      smooth_iterations=smooth_iterations, free_points=free_points, keep_near=keep_near,
+                      inward=inward)
     files = {p.suffix.lstrip("."): p for p in res.paths}
     files["sidecar"] = res.sidecar
     return files, res.mesh

@@ -75,6 +75,8 @@ class FastModel(ReconstructionModel):
         self._thin_points = None    # (voxel, thin_part_cloud) of the latest grid: the start field and `thin_parts`
         self.level = 0 if self.fc.coarse_fraction > 0 and self.fc.coarse_resolution < self.fc.resolution else 1
         self.grid, self.free = self._initial(self.fc.coarse_resolution if self.level == 0 else self.fc.resolution)
+        self._start_raw = (self.grid.raw_xyz().detach().clone()     # the hull's placement reads the start's labels
+                           if self.level == 1 and self.fc.mesh_hull_shrink_voxels > 0 else None)
         # lit pairs whose light came from another surface in the pixel: the start field carved from where their
         # own path puts it; training, which pairs each with the rendered depth, leaves them out
         voxel = float(torch.as_tensor(self.bbox[1] - self.bbox[0]).max()) / self.fc.resolution
@@ -324,6 +326,19 @@ class FastModel(ReconstructionModel):
             raw = binary_boundary_inset(raw, level, half, self.fc.mesh_hull_inset_voxels,
                                         self.fc.mesh_hull_inset_max_voxels, keep, self.fc.mesh_hull_inset_min_voxels)
         return raw.cpu().numpy(), level
+
+    def mesh_inward(self, volume, level: float):
+        """(movable voxels, metres, steps) for the mesh's bounded inward smoothing of the hidden hull
+        (`fast.mesh_hull_shrink_voxels`, hull_subvoxel.py) of the mesh field `volume` (`surface_volume`), or None."""
+        if self.fc.mesh_hull_shrink_voxels <= 0:
+            return None
+        from .hull_subvoxel import SHRINK_ITERATIONS, shrinkable_hull
+        if self._start_raw is None or tuple(self._start_raw.shape) != tuple(self.grid.box.shape):
+            self._start_raw = self._initial(box=self.grid.box)[0].raw_xyz().detach()
+        vol = torch.as_tensor(volume)
+        movable = shrinkable_hull(self, self._start_raw, self.fc.mesh_hull_shrink_graze_samples,
+                                  vol >= level + 0.5 * (float(vol.max()) - level))   # saturated: level + half
+        return movable.cpu().numpy(), self.fc.mesh_hull_shrink_voxels * self.grid.box.voxel, SHRINK_ITERATIONS
 
     def params_finite(self) -> bool:
         return bool(torch.isfinite(self.grid.raw).all())

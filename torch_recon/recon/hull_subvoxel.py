@@ -1,0 +1,88 @@
+"""The shadow hull's faces that no camera ray places, below voxel granularity (session 13, issue 11).
+
+The hull is binary: an uncarved voxel next to a carved one meets marching cubes at their shared voxel face,
+wherever inside the 3.2 cm voxels the object ends. The lit segments cannot place those faces finer: whole-voxel
+carving (any marching sample carves) already takes every voxel a lit segment passes through, so no hull voxel
+holds a lit segment within half a voxel of its centre, and the faces lie inside the lit segments' envelope
+(organic-occluded, dark-room; docs/reconstruction.md). A visual hull over-estimates its object where no light
+came near, so the mesh's hull vertices are smoothed inward by a bounded amount (mesh_export `inward_smoothing`,
+`fast.mesh_hull_shrink_voxels`): a staircase's convex steps are cut. Not at a shadow's edge: a shadowed segment
+that grazes the hull there needs its blocker in that voxel (the object reaches it).
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from .data import lit_path_tolerance, unexplained_lit
+from .hull_trim import sole_blockers
+from .init import _accumulate, _carving_pixel_mask, _segment_counts, _segments
+from .sampler import ray_box
+
+#: Laplacian steps of the inward smoothing (each moves a vertex half-way to its neighbours' mean at most)
+SHRINK_ITERATIONS = 10
+
+
+def _next_to(mask: torch.Tensor) -> torch.Tensor:
+    """Voxels with a 6-neighbour in `mask` (nx, ny, nz) bool."""
+    p = F.pad(mask.float()[None, None], (1,) * 6)[0, 0]
+    n = torch.zeros_like(mask)
+    for axis in range(3):
+        for t in (0, 2):
+            sl = [slice(1, 1 + s) for s in mask.shape]
+            sl[axis] = slice(t, t + mask.shape[axis])
+            n |= p[tuple(sl)] > 0
+    return n
+
+
+def hull_voxels(start_raw: torch.Tensor, raw_free: float, raw_occupied: float, lit_count: torch.Tensor, keep=None):
+    """Occupied voxels of the start field `start_raw` (nx, ny, nz; training barely moves them, session 5) that no
+    lit segment carved (the shadow hull proper: not a restored blocker, which the light crossed, nor a thin part in
+    `keep`), next to a free voxel and not next to a measured surface's ramp (that surface would move)."""
+    occ = start_raw >= raw_occupied - 1e-3
+    free = start_raw <= raw_free + 1e-3
+    ramp = ~occ & ~free
+    hull = occ & (lit_count == 0) & _next_to(free) & ~_next_to(ramp)
+    return hull if keep is None else hull & ~keep.to(hull.device)
+
+
+def camera_free(model, box) -> torch.Tensor:
+    """Voxels (nx, ny, nz) bool a camera ray crossed before its visible surface (as `evidence_grid`'s label 2,
+    every pixel): the sensor saw through them."""
+    data, fc = model.data, model.fc
+    d = data.visible_depth
+    ok = torch.isfinite(d)
+    dirs = data.pixel_dirs[ok]
+    org = data.sensor_origin.expand_as(dirs).contiguous()
+    near, _ = ray_box(org, dirs, box.bbox_min, box.bbox_max)
+    count = torch.zeros(int(torch.tensor(box.shape).prod()), dtype=torch.long, device=dirs.device)
+    _accumulate(box, org, dirs, near, torch.maximum(d[ok] - fc.surface_margin_voxels * box.voxel, near),
+                fc.step_voxels * box.voxel, count)
+    return (count > 0).reshape(box.shape)
+
+
+def shrinkable_hull(model, start_raw: torch.Tensor, graze_samples: int, occupied=None,
+                    silhouettes: bool = True) -> torch.Tensor:
+    """The hull voxels (nx, ny, nz) bool whose mesh vertices may move inward: `hull_voxels` of the start field with
+    the start's own carving, still `occupied` in the mesh field (not lowered by training or the hull inset), less
+    the voxels a shadowed segment grazes (crossing at most `graze_samples` marching samples of the hull:
+    `hull_trim.sole_blockers`, the shadow's edge) and, with `silhouettes`, the voxels next to camera-free ones."""
+    data, fc, box = model.data, model.fc, model.grid.box
+    step = fc.step_voxels * box.voxel
+    off = max(model.offset_for(box.voxel), fc.surface_margin_voxels * box.voxel)     # as evidence_grid's
+    on_sub = _carving_pixel_mask(data, box, fc.carve_spacing_voxels)[data.pair_pixel]
+    tol = lit_path_tolerance(data, box.voxel, fc.lit_path_tolerance_voxels)
+    lit = _segment_counts(data, box, data.lit & on_sub, off, step, fc.carve_core,
+                          unexplained_lit(data, tol) if tol > 0 else None).reshape(box.shape)
+    keep = None if model.thin_parts is None else model.thin_parts[0, 0].permute(2, 1, 0)
+    start_raw = start_raw.to(lit.device)
+    hull = hull_voxels(start_raw, fc.raw_free, fc.raw_occupied, lit, keep)
+    hull = hull if occupied is None else hull & occupied.to(hull.device)
+    if silhouettes:     # a face the sensor saw past is its silhouette, placed to a pixel
+        hull &= ~_next_to(camera_free(model, box).to(hull.device))
+    if graze_samples > 0:
+        solid = (start_raw > fc.raw_free + 1e-3).reshape(-1)
+        edge = sole_blockers(box, solid, _segments(data, data.shadowed & on_sub, off), step, max_samples=graze_samples)
+        hull &= ~edge.reshape(box.shape)
+    return hull
