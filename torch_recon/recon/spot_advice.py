@@ -62,8 +62,9 @@ class AdviceSettings:
     pixel_stride: int = 2             # segments to every n-th pixel along each image axis
     back_faces: bool = False          # also aim at the fit's hidden back faces next to a measured surface (a table
                                       # top's underside): targets light passes unattenuated. Opt-in: 8 + 8 advised
-                                      # (with 1000 candidates) lifts thin-structures (hidden R 0.690 -> 0.789) and
-                                      # loses on dark-room (0.828 -> 0.804); docs/reconstruction.md, session 13
+                                      # lifts thin-structures (hidden R 0.690 -> 0.726 at 300 candidates, 0.789 at
+                                      # 1000) but not organic-occluded (0.898 -> 0.893 / 0.875) nor dark-room
+                                      # (0.828 -> 0.786 / 0.804); docs/reconstruction.md, session 13
     seed: int = 0                     # candidate choice (select_diverse_spots)
     device: str = "cpu"               # torch device
     threads: int | None = None        # CPU threads for torch
