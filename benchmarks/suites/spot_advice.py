@@ -36,12 +36,14 @@ class Settings:
                                     # K + spread-out unused candidates
     beyond_view_deg: str = ""       # scene:deg pairs (none: as far as the first pass's spots lie); other
                                     # scenes: the advisor's default (in view only)
+    back_faces: bool = False        # the advisor's --back-faces (aim at the fit's hidden back faces too)
+    candidates: int = 300           # the advisor's --candidates
     seed: int = 0
     threads: int = 2                # CPU threads of each fit
     timeout_s: float = 1800.0
 
     SETTINGS_META = {"first_pass": {"choices": ("spread", "first")}, "total": {"range": (2, None)},
-                     "threads": {"range": (1, None)}}
+                     "threads": {"range": (1, None)}, "candidates": {"range": (1, None)}}
 
     def __post_init__(self):
         from torch_recon.contract.errors import SettingsError
@@ -119,6 +121,7 @@ def run(s: Settings, ctx) -> list:
             advice_json = ctx.work_dir / f"{scene}-{keep}-advice.json"
             run_adv = ctx.run_cli([*runners.RECON, "advise-spots", first, first_fit, "--add", add,
                                    "--beyond-view-deg", _beyond(s, scene), "--seed", s.seed, "--threads", s.threads,
+                                   "--candidates", s.candidates, "--back-faces" if s.back_faces else "--no-back-faces",
                                    "--out", advice_json], timeout=s.timeout_s)
             advised = [a["point"] for a in json.loads(advice_json.read_text())["advised"]]
             if "spread" in s.controls:

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-ADVISE_FLAGS = ("add", "candidates", "occupied_prior", "beyond_view_deg", "pixel_stride", "seed", "device",
-                "threads")
+ADVISE_FLAGS = ("add", "candidates", "occupied_prior", "beyond_view_deg", "pixel_stride", "back_faces", "seed",
+                "device", "threads")
 
 
 def register(sub) -> None:
@@ -15,7 +15,8 @@ def register(sub) -> None:
               description="Finds the shadow hull of a fast fit that no lit segment crosses (space only shadows "
                           "bound) and advises laser spots whose light would pass it: visible surface points "
                           "the laser reaches, scored by the hull voxels their segments to the sensor-visible "
-                          "points would carve. Prints one line per spot and the simulator's --spot-list.",
+                          "points would carve and the hidden back faces (a table's underside) they would graze. "
+                          "Prints one line per spot and the simulator's --spot-list.",
               arguments=((("dataset",), {"help": "dataset directory (dataset.json) the fit was made from"}),
                          (("fit_dir",), {"metavar": "FIT_DIR", "help": "output folder of `platolidar fit --mode "
                                                                        "fast` (volume.npz, fit.json)"}),

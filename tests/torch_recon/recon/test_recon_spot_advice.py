@@ -135,3 +135,54 @@ def test_beyond_view_none_aims_as_far_beyond_the_view_as_the_capture_s_spots():
     half_y = np.degrees(np.arctan(24 / 32))          # the image's half height, at the same focal length
     assert degrees_beyond_view(sensor, [at(0, half_y + 7)]) == pytest.approx(7.0, abs=1e-6)
     assert degrees_beyond_view(sensor, [[0.0, -1.0, 0.0]]) == 0.0      # behind the sensor
+
+
+def _slab_grid():
+    """A 10^3 grid of 0.1 m voxels from (0, 1, 0), a slab occupying x 2..7, y 3..7, z 4..5 (indices), and a
+    sensor in front of it, above and right of it (0.9, 0, 2)."""
+    from torch_recon.contract.frames import look_at_c2w
+    from torch_recon.recon.fields import GridBox
+
+    box = GridBox.exact([0.0, 1.0, 0.0], 0.1, (10, 10, 10))
+    occupied = torch.zeros(10, 10, 10, dtype=torch.bool)
+    occupied[2:8, 3:8, 4:6] = True
+    return box, occupied, look_at_c2w([0.9, 0.0, 2.0], [0.5, 1.5, 0.45])
+
+
+def test_back_faces_are_the_sides_of_a_part_facing_away_from_the_sensor():
+    """A slab seen from above and in front: its underside, its far side and its left side (the sensor is
+    right of it) bound free space away from the sensor; its top and front do not (the sensor sees them)."""
+    from torch_recon.recon.spot_advice import back_facing_free
+
+    box, occupied, c2w = _slab_grid()
+    back = back_facing_free(occupied, box, c2w)
+    assert bool(back[2:8, 3:8, 4].all())                # the underside: every voxel of the lower layer
+    assert not bool(back[3:7, 3:7, 5].any())            # the top's inner voxels (the front row included)
+    assert bool(back[3:7, 7, 5].all())                  # the far side's upper row
+    assert bool(back[2, 3:7, 5].all()) and not bool(back[7, 3:7, 5].any())   # left side yes, right side no
+    assert not bool((back & ~occupied).any())
+
+
+def test_light_grazing_a_back_face_places_it():
+    """A FACE voxel (a hidden back face next to a measured surface) is a target the light passes, not a
+    blocker and not unbounded hull: a segment along the slab's underside values each of its voxels 1; as HULL
+    the same voxels are worth (1 - prior)^n; one SOLID voxel on the way stops the segment."""
+    from torch_recon.recon.spot_advice import FACE, HULL, SOLID, _segment_values
+
+    box, occupied, _ = _slab_grid()
+    layer = torch.zeros(10, 10, 10, dtype=torch.bool)
+    layer[2:8, 5, 4] = True                             # one row of the underside, along x
+    index = torch.full((1000,), -1, dtype=torch.long)
+    flat = torch.nonzero(layer.reshape(-1)).squeeze(1)
+    index[flat] = torch.arange(len(flat))
+    start, end = torch.tensor([[0.05, 1.55, 0.45]]), torch.tensor([[0.95, 1.55, 0.45]])
+
+    def values(kind):
+        cls = torch.zeros(1000, dtype=torch.int8)
+        cls[flat] = kind
+        return _segment_values(box, cls, index, len(flat), start, end, 0.0, 0.05, 0.25, "cpu")
+
+    assert torch.allclose(values(FACE), torch.ones(6))
+    hull = values(HULL)
+    assert bool((hull > 0).all()) and float(hull.max()) < 0.5      # six voxels of prior 0.25: 0.75^6 = 0.18
+    assert float(values(SOLID).sum()) == 0.0
