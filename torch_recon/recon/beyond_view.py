@@ -61,9 +61,9 @@ def _shadowed_samples(data: RayData, box: GridBox, flat_hull: torch.Tensor, spot
                       step: float, chunk_samples: int):
     """Per chunk of the `spots`' shadowed segments, samples ordered from x to the spot: (voxel index (long,
     0 where outside the box), inside the box, inside the hull)."""
-    from .init import marching_cells, _segments
+    from .init import marching_cells, pair_segments
 
-    seg = _segments(data, data.shadowed & torch.isin(data.pair_spot, spots), off)
+    seg = pair_segments(data, data.shadowed & torch.isin(data.pair_spot, spots), off)
     if seg[0].shape[0] == 0:
         return
     for _, flat, keep in marching_cells(box, *seg, step, chunk_samples):

@@ -17,7 +17,7 @@ import torch.nn.functional as F
 
 from .data import lit_path_tolerance, unexplained_lit
 from .hull_trim import sole_blockers
-from .init import _accumulate, _carving_pixel_mask, _segment_counts, _segments
+from .init import accumulate_crossings, carving_pixel_mask, segment_counts, pair_segments
 from .sampler import ray_box
 
 #: Laplacian steps of the inward smoothing (each moves a vertex half-way to its neighbours' mean at most)
@@ -57,7 +57,7 @@ def camera_free(model, box) -> torch.Tensor:
     org = data.sensor_origin.expand_as(dirs).contiguous()
     near, _ = ray_box(org, dirs, box.bbox_min, box.bbox_max)
     count = torch.zeros(int(torch.tensor(box.shape).prod()), dtype=torch.long, device=dirs.device)
-    _accumulate(box, org, dirs, near, torch.maximum(d[ok] - fc.surface_margin_voxels * box.voxel, near),
+    accumulate_crossings(box, org, dirs, near, torch.maximum(d[ok] - fc.surface_margin_voxels * box.voxel, near),
                 fc.step_voxels * box.voxel, count)
     return (count > 0).reshape(box.shape)
 
@@ -71,9 +71,9 @@ def shrinkable_hull(model, start_raw: torch.Tensor, graze_samples: int, occupied
     data, fc, box = model.data, model.fc, model.grid.box
     step = fc.step_voxels * box.voxel
     off = max(model.offset_for(box.voxel), fc.surface_margin_voxels * box.voxel)     # as evidence_grid's
-    on_sub = _carving_pixel_mask(data, box, fc.carve_spacing_voxels)[data.pair_pixel]
+    on_sub = carving_pixel_mask(data, box, fc.carve_spacing_voxels)[data.pair_pixel]
     tol = lit_path_tolerance(data, box.voxel, fc.lit_path_tolerance_voxels)
-    lit = _segment_counts(data, box, data.lit & on_sub, off, step, fc.carve_core,
+    lit = segment_counts(data, box, data.lit & on_sub, off, step, fc.carve_core,
                           unexplained_lit(data, tol) if tol > 0 else None).reshape(box.shape)
     keep = None if model.thin_parts is None else model.thin_parts[0, 0].permute(2, 1, 0)
     start_raw = start_raw.to(lit.device)
@@ -83,6 +83,6 @@ def shrinkable_hull(model, start_raw: torch.Tensor, graze_samples: int, occupied
         hull &= ~_next_to(camera_free(model, box).to(hull.device))
     if graze_samples > 0:
         solid = (start_raw > fc.raw_free + 1e-3).reshape(-1)
-        edge = sole_blockers(box, solid, _segments(data, data.shadowed & on_sub, off), step, max_samples=graze_samples)
+        edge = sole_blockers(box, solid, pair_segments(data, data.shadowed & on_sub, off), step, max_samples=graze_samples)
         hull &= ~edge.reshape(box.shape)
     return hull

@@ -102,7 +102,7 @@ def marching_cells(box: GridBox, origins, dirs, near, far, step, chunk_samples: 
         yield rays, flat, keep
 
 
-def _accumulate(box: GridBox, origins, dirs, near, far, step, counts, chunk_samples=1 << 20, core: float = 0.5):
+def accumulate_crossings(box: GridBox, origins, dirs, near, far, step, counts, chunk_samples=1 << 20, core: float = 0.5):
     """Add 1 to `counts` (flat, x-major) for every marching sample of each segment inside the box whose
     position lies within `core` voxel of the voxel centre on every axis (0.5: anywhere in the voxel;
     smaller: a segment that only clips a corner of a partly filled voxel does not count)."""
@@ -114,14 +114,14 @@ def _accumulate(box: GridBox, origins, dirs, near, far, step, counts, chunk_samp
         counts += torch.bincount(flat.masked_fill_(~keep, n).long().reshape(-1), minlength=n + 1)[:n]
 
 
-def _segment_counts(data: RayData, box: GridBox, mask, off, step, core, own_range=None):
+def segment_counts(data: RayData, box: GridBox, mask, off, step, core, own_range=None):
     """Per-voxel count of marching samples of the secondary segments x -> l of the pairs in `mask`."""
     counts = torch.zeros(int(np.prod(box.shape)), dtype=torch.long, device=data.pixel_dirs.device)
-    _accumulate(box, *_segments(data, mask, off, own_range), step, counts, core=core)
+    accumulate_crossings(box, *pair_segments(data, mask, off, own_range), step, counts, core=core)
     return counts
 
 
-def _segments(data: RayData, mask, off, own_range=None):
+def pair_segments(data: RayData, mask, off, own_range=None):
     """Secondary segments x -> l of the pairs in `mask` (finite visible depth, longer than 2 `off`):
     origins, unit directions, near, far. own_range: bool (N,), pairs whose x is where their own path puts the
     surface on the pixel ray instead of the pixel's visible point (`data.unexplained_lit`: their light came from
@@ -192,7 +192,7 @@ def spot_crossings(data: RayData, box: GridBox, mask, off, step, core=0.5):
     n = int(np.prod(box.shape))
     spots = torch.zeros(n, dtype=torch.long, device=data.pixel_dirs.device)
     for k in torch.unique(data.pair_spot[mask]).tolist():
-        spots += _segment_counts(data, box, mask & (data.pair_spot == k), off, step, core) > 0
+        spots += segment_counts(data, box, mask & (data.pair_spot == k), off, step, core) > 0
     return spots
 
 
@@ -213,7 +213,7 @@ def _pixel_stride(data: RayData, voxel: float, spacing_voxels: float = 1.0) -> i
     return 1 if footprint is None else max(1, int(spacing_voxels * voxel / footprint))
 
 
-def _carving_pixel_mask(data: RayData, box: GridBox, spacing_voxels: float) -> torch.Tensor:
+def carving_pixel_mask(data: RayData, box: GridBox, spacing_voxels: float) -> torch.Tensor:
     """Pixels (bool (H W,)) whose rays carve (`_pixel_stride` in rows and columns)."""
     stride = _pixel_stride(data, box.voxel, spacing_voxels)
     m = torch.zeros(data.height, data.width, dtype=torch.bool, device=data.pixel_dirs.device)
@@ -255,7 +255,7 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     near, _ = ray_box(org, dirs, box.bbox_min, box.bbox_max)
     free_end = d - surface_margin_voxels * box.voxel
     cam_free = torch.zeros(n, dtype=torch.long, device=dev)
-    _accumulate(box, org, dirs, near, torch.maximum(free_end, near), step, cam_free)
+    accumulate_crossings(box, org, dirs, near, torch.maximum(free_end, near), step, cam_free)
     if seen_free is not None:   # between the pixel rays (visible_surface_init.seen_free)
         cam_free += seen_free.reshape(-1).to(cam_free.device).long()
     surface = torch.zeros(n, dtype=torch.long, device=dev)
@@ -273,9 +273,9 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     on_sub[sub] = True
     off = max(secondary_offset_m, surface_margin_voxels * box.voxel)
     own = unexplained_lit(data, lit_path_tolerance_m) if lit_path_tolerance_m > 0 else None
-    lit_count = _segment_counts(data, box, data.lit & on_sub[data.pair_pixel], off, step, carve_core, own)
+    lit_count = segment_counts(data, box, data.lit & on_sub[data.pair_pixel], off, step, carve_core, own)
     consistent = explain_shadow_rays and bool(data.shadowed.any())
-    shadow_count = (_segment_counts(data, box, data.shadowed & on_sub[data.pair_pixel], off, step, 0.5)
+    shadow_count = (segment_counts(data, box, data.shadowed & on_sub[data.pair_pixel], off, step, 0.5)
                     if count_shadow or consistent else torch.zeros_like(lit_count))
     label = torch.zeros(n, dtype=torch.int8, device=dev)
     label[lit_count >= max(1, carve_min_lit)] = 3
@@ -283,7 +283,7 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     label[surface > 0] = 1
     label[nearest & (surface == 0)] = NEAREST
     if consistent:
-        seg = _segments(data, data.shadowed & on_sub[data.pair_pixel], off)
+        seg = pair_segments(data, data.shadowed & on_sub[data.pair_pixel], off)
         score = None
         if explain_score == "spots":    # distinct spots whose shadows cross a voxel, over distinct lit spots
             sh = data.shadowed & on_sub[data.pair_pixel]
@@ -308,8 +308,8 @@ def _hull_prior(data: RayData, box: GridBox, cfg, label, free, view, sd, shell, 
     band = torch.isfinite(sd) if sd is not None else dilate_cube((label == 1).float(), 2) > 0
     removable = (label == 0) & solid & ~band & (shell < -0.5 * box.voxel)
     removable = removable if view is None else removable & view
-    on_sub = _carving_pixel_mask(data, box, cfg.carve_spacing_voxels)
-    segs = _segments(data, data.shadowed & on_sub[data.pair_pixel], off)
+    on_sub = carving_pixel_mask(data, box, cfg.carve_spacing_voxels)
+    segs = pair_segments(data, data.shadowed & on_sub[data.pair_pixel], off)
     step = cfg.step_voxels * box.voxel
     removed = torch.zeros_like(solid)
     if cfg.hull_opening_voxels > 0:

@@ -15,7 +15,7 @@ def _box(n=12):
     return GridBox([0.0, 0.0, 0.0], [1.0 * n / 10, 1.0 * n / 10, 1.0 * n / 10], n)     # voxel 0.1 m
 
 
-def _segments(pairs):
+def pair_segments(pairs):
     o = torch.tensor([a for a, _ in pairs], dtype=torch.float32)
     b = torch.tensor([b for _, b in pairs], dtype=torch.float32)
     v = b - o
@@ -59,7 +59,7 @@ def test_keep_blocked_keeps_the_only_blocker_of_a_shadow():
     box = _box()
     solid, flange = _block_with_flange()
     # one shadowed segment crosses the flange only (z = 0.25, above x 0.6..0.9), one crosses flange and cube
-    segs = _segments([((0.75, 0.35, 0.0), (0.75, 0.35, 1.15)),      # through flange voxel (7, 3, 2)
+    segs = pair_segments([((0.75, 0.35, 0.0), (0.75, 0.35, 1.15)),      # through flange voxel (7, 3, 2)
                       ((1.15, 0.45, 0.25), (0.0, 0.45, 0.25))])     # along x through flange and cube
     kept = keep_blocked(box, solid, flange, segs, step=0.05)
     assert not bool(kept[7, 3, 2])                 # its only blocker stays
@@ -71,7 +71,7 @@ def test_keep_blocked_keeps_the_only_blocker_of_a_shadow():
 def test_sole_blockers_are_where_a_shadow_grazes():
     box = _box()
     solid, _ = _block_with_flange()
-    segs = _segments([((0.75, 0.35, 0.0), (0.75, 0.35, 1.15)),      # one flange voxel: 2 samples at step 0.05
+    segs = pair_segments([((0.75, 0.35, 0.0), (0.75, 0.35, 1.15)),      # one flange voxel: 2 samples at step 0.05
                       ((1.15, 0.45, 0.35), (0.0, 0.45, 0.35))])     # 4 cube voxels: 8 samples
     sole = sole_blockers(box, solid.reshape(-1), segs, step=0.05, max_samples=3).reshape(solid.shape)
     assert bool(sole[7, 3, 2]) and int(sole.sum()) == 1

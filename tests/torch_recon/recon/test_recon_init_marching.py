@@ -12,7 +12,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from torch_recon.recon.fields import GridBox  # noqa: E402
-from torch_recon.recon.init import _accumulate, marching_cells  # noqa: E402
+from torch_recon.recon.init import accumulate_crossings, marching_cells  # noqa: E402
 from torch_recon.recon.visible_surface_init import dilate_cube  # noqa: E402
 from torch_recon.recon.sampler import marching_intervals  # noqa: E402
 
@@ -31,7 +31,7 @@ def _reference_counts(box, origins, dirs, near, far, step, core=0.5):
     return torch.bincount(flat[keep], minlength=nx * ny * nz)
 
 
-def _segments(n, seed=0):
+def pair_segments(n, seed=0):
     """Segments of very different lengths, some leaving the box, some of zero length."""
     g = torch.Generator().manual_seed(seed)
     a = torch.rand(n, 3, generator=g) * 1.4 - 0.2
@@ -46,18 +46,18 @@ def _segments(n, seed=0):
 @pytest.mark.parametrize("core", [0.5, 0.3])
 def test_marching_counts_equal_one_padded_march(core):
     box = GridBox([0.0, 0.0, 0.0], [1.0, 0.7, 0.9], 23)
-    seg = _segments(400)
+    seg = pair_segments(400)
     step = 0.5 * box.voxel
     ref = _reference_counts(box, *seg, step, core)
     got = torch.zeros(int(np.prod(box.shape)), dtype=torch.long)
-    _accumulate(box, *seg, step, got, chunk_samples=997, core=core)     # many small chunks
+    accumulate_crossings(box, *seg, step, got, chunk_samples=997, core=core)     # many small chunks
     assert int(ref.sum()) > 1000
     assert torch.equal(got, ref)
 
 
 def test_marching_cells_yield_each_segment_once():
     box = GridBox([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], 16)
-    seg = _segments(300, seed=1)
+    seg = pair_segments(300, seed=1)
     rays = torch.cat([r for r, _, _ in marching_cells(box, *seg, 0.03, chunk_samples=500)])
     assert torch.equal(torch.sort(rays).values, torch.arange(300))
 

@@ -1,6 +1,6 @@
 """A lit pair whose path disagrees with its pixel's visible point got its light from another surface in the
 pixel (a depth edge): it carves from where its own path puts the surface, and training leaves it out
-(recon/data.py `unexplained_lit`, recon/init.py `_segments`, `fast.lit_path_tolerance_voxels`)."""
+(recon/data.py `unexplained_lit`, recon/init.py `pair_segments`, `fast.lit_path_tolerance_voxels`)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from torch_recon.contract.errors import SettingsError  # noqa: E402
 from torch_recon.recon.config import FitConfig, override  # noqa: E402
 from torch_recon.recon.data import RayData, lit_path_tolerance, unexplained_lit, without_lit  # noqa: E402
 from torch_recon.recon.fields import GridBox  # noqa: E402
-from torch_recon.recon.init import _segments, evidence_grid  # noqa: E402
+from torch_recon.recon.init import pair_segments, evidence_grid  # noqa: E402
 
 C = np.array([0.5, 0.5, 2.0])
 TOP = np.array([0.5, 0.5, 0.6])     # what the pixel's depth sees: a block's top edge
@@ -43,7 +43,7 @@ def test_the_pair_lit_through_another_surface_is_unexplained():
 
 def test_its_segment_starts_where_its_own_path_puts_the_surface():
     data = _edge_pixel()
-    origins, dirs, near, far = _segments(data, data.lit, 0.01, own_range=unexplained_lit(data, 0.05))
+    origins, dirs, near, far = pair_segments(data, data.lit, 0.01, own_range=unexplained_lit(data, 0.05))
     np.testing.assert_allclose(origins.numpy(), [TOP, FLOOR], atol=1e-4)
     np.testing.assert_allclose((origins + dirs * (far + 0.01)[:, None]).numpy(), [L_ABOVE, L_BELOW], atol=1e-4)
 
