@@ -221,6 +221,10 @@ class FastConfig:
                                           # outside-fov 0.643 / 0.602 -> 0.657 / 0.612 (spurious 3.59 -> 3.39 %), the
                                           # other four within 0.001; without the silhouette rule organic-occluded's
                                           # occluder lost 0.06 hidden R (docs/reconstruction.md)
+    mesh_keep_restored: bool = False  # True: the mesh's island cleanup also keeps a small island touching a restored
+                                      # blocker (init.explain_shadows, label 4): a leg's restored one-voxel column
+                                      # breaks where one voxel moves, and its lower part fell below the island size
+                                      # (as thin parts are kept). Session 13, measured in docs/reconstruction.md
     mesh_hull_shrink_graze_samples: int = 4  # ... except hull voxels a shadowed segment grazes (crosses at most this
                                           # many marching samples of the hull: the shadow's edge); 0: none excepted
                                           # (with the silhouette rule 0 and 4 differ by <= 0.001 on organic / dark-room)
