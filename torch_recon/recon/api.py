@@ -206,11 +206,14 @@ def voxel_centre_box(volume, bbox_min, bbox_max):
 
 def _kept_island_centres(model):
     """(centres (N, 3), one voxel) of the fast model's voxels whose small mesh islands are kept: thin parts and,
-    with `fast.mesh_keep_restored`, restored blockers; None without either."""
+    with `fast.mesh_keep_restored_voxels`, restored blockers in runs that long; None without either."""
     tp = getattr(model, "thin_parts", None)
     mask = None if tp is None else tp[0, 0].permute(2, 1, 0)    # stored (z, y, x) for grid_sample; box (x, y, z)
-    if getattr(model, "fc", None) is not None and model.fc.mesh_keep_restored:
-        restored = model.restored_blockers().to(model.grid.box.bbox_min.device)
+    if getattr(model, "fc", None) is not None and model.fc.mesh_keep_restored_voxels > 0:
+        from .shadow_blockers import restored_runs
+
+        restored = restored_runs(model.restored_blockers(), model.fc.mesh_keep_restored_voxels)
+        restored = restored.to(model.grid.box.bbox_min.device)
         mask = restored if mask is None else mask.to(restored.device) | restored
     if mask is None:
         return None
