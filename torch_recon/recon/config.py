@@ -225,8 +225,11 @@ class FastConfig:
                                       # blocker (init.explain_shadows, label 4) of a connected run (26-neighbours) of at
                                       # least this many restored voxels: a leg's restored one-voxel column breaks where
                                       # one voxel moves, and its lower part fell below the island size (as thin parts
-                                      # are kept); lone restored voxels stay specks. Session 13, measured in
-                                      # docs/reconstruction.md; 0: off
+                                      # are kept); lone restored voxels stay specks. Session 13, N = 3: thin-structures
+                                      # F@2cm / hidden R 0.838 / 0.866 -> 0.834 / 0.870 (the lamp's interior lumps kept),
+                                      # curved-wall F@2cm 0.941 -> 0.935; with explain_neighbour_power 1 it gives the
+                                      # table's leg back (table hidden R 0.857 -> 0.892) but the lamp pays: opt-in
+                                      # (docs/reconstruction.md "Islands that hold restored blockers"); 0: off
     mesh_hull_shrink_graze_samples: int = 4  # ... except hull voxels a shadowed segment grazes (crosses at most this
                                           # many marching samples of the hull: the shadow's edge); 0: none excepted
                                           # (with the silhouette rule 0 and 4 differ by <= 0.001 on organic / dark-room)
