@@ -179,7 +179,7 @@ def _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, expo
                 files, result.mesh = export_volume(mvol, lo, hi, mlevel, staged / "mesh", result.metadata,
                                                    uv=uv, free_space=free, free_points=free_points,
                                                    smooth_iterations=cfg.mesh_smooth_iterations,
-                                                   keep_near=_thin_part_centres(model),
+                                                   keep_near=_kept_island_centres(model),
                                                    inward=(model.mesh_inward(mvol, mlevel)
                                                            if hasattr(model, "mesh_inward") else None))
                 result.mesh_files = {k: stage.final(v) for k, v in files.items()}
@@ -204,14 +204,20 @@ def voxel_centre_box(volume, bbox_min, bbox_max):
     return lo + half, hi - half
 
 
-def _thin_part_centres(model):
-    """(centres (N, 3), one voxel) of the fast model's thin-part voxels, for the mesh's island cleanup; None
-    without thin parts."""
+def _kept_island_centres(model):
+    """(centres (N, 3), one voxel) of the fast model's voxels whose small mesh islands are kept: thin parts and,
+    with `fast.mesh_keep_restored_voxels`, restored blockers in runs that long; None without either."""
     tp = getattr(model, "thin_parts", None)
-    if tp is None:
+    mask = None if tp is None else tp[0, 0].permute(2, 1, 0)    # stored (z, y, x) for grid_sample; box (x, y, z)
+    if getattr(model, "fc", None) is not None and model.fc.mesh_keep_restored_voxels > 0:
+        from .shadow_blockers import restored_runs
+
+        restored = restored_runs(model.restored_blockers(), model.fc.mesh_keep_restored_voxels)
+        restored = restored.to(model.grid.box.bbox_min.device)
+        mask = restored if mask is None else mask.to(restored.device) | restored
+    if mask is None:
         return None
     box = model.grid.box
-    mask = tp[0, 0].permute(2, 1, 0)                # stored (z, y, x) for grid_sample; the box is (x, y, z)
     return box.centres()[mask.to(box.bbox_min.device)].cpu().double().numpy(), float(box.voxel)
 
 

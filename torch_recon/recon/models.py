@@ -73,6 +73,7 @@ class FastModel(ReconstructionModel):
         self.bbox = grid_bbox(data, self.fc.resolution, self.fc.bbox_margin_voxels)
         self._surface = None    # (voxel, visible surface) of the latest grid: the start field and the mesh share it
         self._thin_points = None    # (voxel, thin_part_cloud) of the latest grid: the start field and `thin_parts`
+        self._restored = None       # the latest start field's restored blockers (nx, ny, nz bool): the mesh keeps them
         self.level = 0 if self.fc.coarse_fraction > 0 and self.fc.coarse_resolution < self.fc.resolution else 1
         self.grid, self.free = self._initial(self.fc.coarse_resolution if self.level == 0 else self.fc.resolution)
         self._start_raw = (self.grid.raw_xyz().detach().clone()     # the hull's placement reads the start's labels
@@ -94,8 +95,19 @@ class FastModel(ReconstructionModel):
         """The start field and its free space on `box`, or on a new box of `res` voxels along the longest side."""
         box = GridBox(self.bbox[0], self.bbox[1], res).to(self.device) if box is None else box
         seen = coarse_sensor_seen_free(self.data, box, self.fc, self.meta)
-        return initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box),
-                            self.visible_surface(box), seen_free=seen, thin_points=self.thin_points(box))
+        restored = []
+        start = initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box),
+                             self.visible_surface(box), seen_free=seen, thin_points=self.thin_points(box),
+                             restored_out=restored)
+        self._restored = restored[0]
+        return start
+
+    def restored_blockers(self):
+        """The current grid's restored blockers (`init.explain_shadows`, nx, ny, nz bool) from its start field,
+        built again only where none was built on this grid (a resumed fit)."""
+        if self._restored is None or tuple(self._restored.shape) != tuple(self.grid.box.shape):
+            self._initial(box=self.grid.box)
+        return self._restored
 
     def training_data(self, data: RayData) -> RayData:
         return self._training_data if data is self.data else data

@@ -30,3 +30,15 @@ def blocker_weight(label: torch.Tensor, power: float) -> torch.Tensor | None:
         return None
     return (1.0 + occupied_neighbours(label)).pow(power).reshape(-1)
 
+
+def restored_runs(restored: torch.Tensor, min_voxels: int) -> torch.Tensor:
+    """The restored blockers (nx, ny, nz bool) in a connected run (26-neighbours) of at least `min_voxels`: a part's
+    column the shadows put back, not a lone voxel (a speck the mesh's island cleanup should still drop)."""
+    from scipy.ndimage import label as connected
+
+    parts, n = connected(restored.cpu().numpy(), structure=[[[1] * 3] * 3] * 3)
+    if n == 0:
+        return torch.zeros_like(restored)
+    size = torch.bincount(torch.as_tensor(parts).reshape(-1), minlength=n + 1)
+    size[0] = 0
+    return (size[torch.as_tensor(parts).long()] >= min_voxels).to(restored.device)

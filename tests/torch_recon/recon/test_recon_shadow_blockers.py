@@ -50,3 +50,66 @@ def test_the_blocker_goes_next_to_what_stayed_occupied(power, expected):
 def test_a_negative_power_is_refused():
     with pytest.raises(SettingsError, match="fast.explain_neighbour_power"):
         FitConfig.from_dict({"mode": "fast", "fast": {"explain_neighbour_power": -1.0}})
+
+
+def test_mesh_islands_touching_a_restored_blocker_survive_the_cleanup():
+    """`fast.mesh_keep_restored_voxels`: a leg's restored one-voxel column, broken where one voxel moved, falls apart
+    into pieces below the island size; the pieces of the restored run are kept, a lone restored voxel (a speck)
+    still goes."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from torch_recon.mesh_export import mesh_from_volume
+    from torch_recon.recon.api import _kept_island_centres, voxel_centre_box
+
+    n = 40
+    box = GridBox([0.0, 0.0, 0.0], [float(n)] * 3, n)     # 1 m voxels
+    v = np.zeros(box.shape, np.float32)
+    v[2:38, 2:38, 2:6] = 1.0                              # the floor
+    v[20, 20, 8:14] = 1.0                                 # a leg's restored column above the floor, broken at z = 14
+    v[20, 20, 15:30] = 1.0
+    v[5, 30, 20] = 1.0                                    # a speck: a lone restored voxel
+    restored = torch.zeros(box.shape, dtype=torch.bool)
+    restored[20, 20, 8:14] = restored[20, 20, 15:30] = restored[5, 30, 20] = True
+    model = SimpleNamespace(thin_parts=None, grid=SimpleNamespace(box=box), restored_blockers=lambda: restored,
+                            fc=SimpleNamespace(mesh_keep_restored_voxels=3))
+    lo, hi = voxel_centre_box(v, box.bbox_min.numpy(), box.bbox_max.numpy())
+    leg = lambda m: int(((np.abs(m.vertices[:, :2] - 20.5) < 1.0).all(1) & (m.vertices[:, 2] > 7)).sum())  # noqa: E731
+    speck = lambda m: bool((np.abs(m.vertices - [5.5, 30.5, 20.5]).max(1) < 1.5).any())  # noqa: E731
+    kept, _ = mesh_from_volume(v, lo, hi, 0.5, min_island_fraction=0.2, keep_near=_kept_island_centres(model))
+    assert leg(kept) > 0 and not speck(kept)
+    model.fc.mesh_keep_restored_voxels = 0                # off: no thin parts, nothing kept near anything
+    assert _kept_island_centres(model) is None
+    plain, _ = mesh_from_volume(v, lo, hi, 0.5, min_island_fraction=0.2, keep_near=None)
+    assert leg(plain) == 0 and not speck(plain)
+
+
+def test_the_model_keeps_the_start_fields_restored_blockers_without_labelling_again(monkeypatch):
+    """`FastModel.restored_blockers` is the start field's label 4, from the one evidence labelling it was built
+    with (not a second `evidence_grid` run at export)."""
+    import torch_recon.recon.init as init
+    from tests.torch_recon.recon.test_recon_thin_training import _meta, _wall_post_data
+    from tests.torch_recon.recon.test_recon_fit import small_config
+    from torch_recon.recon.models import FastModel
+
+    labels = []
+    original = init.configured_evidence_grid
+
+    def counted(*args, **kwargs):
+        out = original(*args, **kwargs)
+        labels.append(out[0].clone())
+        return out
+
+    monkeypatch.setattr(init, "configured_evidence_grid", counted)
+    cfg = small_config(steps=10)
+    cfg.fast.resolution = 32
+    model = FastModel(_wall_post_data(), cfg, _meta())
+    assert len(labels) == 1
+    restored = model.restored_blockers()
+    assert len(labels) == 1 and torch.equal(restored, labels[0] == RESTORED)
+
+
+def test_a_negative_restored_run_length_is_refused():
+    with pytest.raises(SettingsError, match="fast.mesh_keep_restored_voxels"):
+        FitConfig.from_dict({"mode": "fast", "fast": {"mesh_keep_restored_voxels": -1}})
