@@ -101,6 +101,12 @@ class FastConfig:
                                       # (shadow_blockers.py). Session 13, 0.5, six scenes: F@2cm cave-chair 0.944 ->
                                       # 0.949, curved-wall 0.941 -> 0.951, outside-fov +0.004; thin-structures hidden
                                       # R 0.866 -> 0.859, dark-room 0.902 / 0.827 -> 0.895 / 0.815: opt-in; 0: off
+    explain_pick: str = "segment"     # 'segment': each shadowed segment's blocker is its own best-ranked carved voxel;
+                                      # 'cover': the blockers are chosen together, greedily the carved voxel crossed by
+                                      # the most still-unblocked segments / (lit crossings + 1) ^ explain_cover_lit_power
+                                      # (recon/shadow_cover.py): a wall voxel a whole shadow shares beats the lamp
+                                      # shade's less-lit interior that one segment alone ranks first (session 14)
+    explain_cover_lit_power: float = 0.5  # 'cover' only: how much a voxel's lit crossings count against it
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
     lit_path_tolerance_voxels: float = 1.0  # > 0: a lit pair whose measured path is farther than this (voxels; at
                                       # least half a time bin) from the path through its pixel's visible point x got
@@ -213,6 +219,18 @@ class FastConfig:
     mesh_hull_inset_min_voxels: int = 2   # ... and at least this many (2: a one-voxel leg or blocker keeps its faces).
                                           # Session 12, with lit_path_tolerance_voxels 1: thin-structures F@2cm 0.816 ->
                                           # 0.837; alone it cost dark-room's chair hidden R 0.007 (docs/reconstruction.md)
+    mesh_sheet_inset_voxels: float = 0.0  # > 0: the mesh field's one-voxel sheets (free on both sides across, at least
+                                          # mesh_sheet_min_in_plane of 8 in-plane neighbours occupied: a lamp-shade wall
+                                          # the shadows put back) get both faces this far inside their voxel faces
+                                          # (recon/thin_sheets.py): a 1 cm wall anywhere in its 3.2 cm voxel, not a whole
+                                          # voxel; legs and poles (columns) keep theirs. 0: off (session 14)
+    mesh_sheet_min_in_plane: int = 4      # ... a sheet: at least this many of the 8 in-plane neighbours occupied
+    mesh_sheet_max_voxels: int = 1        # ... and at most this many voxels thick (2: also the two-voxel slabs a wall
+                                          # straddling a voxel face leaves, where training left them unsaturated and
+                                          # mesh_hull_inset_voxels does not reach them)
+    mesh_lone_inset_voxels: float = 0.0   # > 0: a voxel of the mesh field with no occupied 6-neighbour (a lone restored
+                                          # blocker: 57 % of thin-structures' lie beyond 3.2 cm of any surface, session 13)
+                                          # keeps a blob this far inside its voxel faces (thin_sheets.py); 0: off
     mesh_hull_shrink_voxels: float = 0.5  # > 0: the mesh vertices of the hidden hull (no measured surface's ramp, thin
                                           # part, restored blocker or camera-free voxel beside them) are smoothed inward,
                                           # at most this far (recon/hull_subvoxel.py; a visual hull over-estimates its
@@ -320,6 +338,12 @@ class FitConfig:
                                                             f"{self.fast.thin_part_training!r}")
         if self.fast.explain_score not in ("ratio", "spots"):
             raise SettingsError("fast.explain_score", f"expected 'ratio' or 'spots', got {self.fast.explain_score!r}")
+        if self.fast.explain_pick not in ("segment", "cover", "near_cover"):
+            raise SettingsError("fast.explain_pick",
+                                f"expected 'segment', 'cover' or 'near_cover', got {self.fast.explain_pick!r}")
+        if not (math.isfinite(self.fast.explain_cover_lit_power) and self.fast.explain_cover_lit_power >= 0):
+            raise SettingsError("fast.explain_cover_lit_power",
+                                f"expected a power >= 0, got {self.fast.explain_cover_lit_power}")
         if not (math.isfinite(self.fast.explain_neighbour_power) and self.fast.explain_neighbour_power >= 0):
             raise SettingsError("fast.explain_neighbour_power",
                                 f"expected a power >= 0 (0: off), got {self.fast.explain_neighbour_power}")
@@ -353,6 +377,18 @@ class FitConfig:
         if not 0.0 <= self.fast.mesh_hull_inset_voxels <= 0.45:
             raise SettingsError("fast.mesh_hull_inset_voxels",
                                 f"expected voxels in [0, 0.45] (0: off), got {self.fast.mesh_hull_inset_voxels}")
+        if not 0.0 <= self.fast.mesh_sheet_inset_voxels <= 0.45:
+            raise SettingsError("fast.mesh_sheet_inset_voxels",
+                                f"expected voxels in [0, 0.45] (0: off), got {self.fast.mesh_sheet_inset_voxels}")
+        if not 0.0 <= self.fast.mesh_lone_inset_voxels <= 0.45:
+            raise SettingsError("fast.mesh_lone_inset_voxels",
+                                f"expected voxels in [0, 0.45] (0: off), got {self.fast.mesh_lone_inset_voxels}")
+        if not 1 <= self.fast.mesh_sheet_max_voxels <= 4:
+            raise SettingsError("fast.mesh_sheet_max_voxels",
+                                f"expected voxels in [1, 4], got {self.fast.mesh_sheet_max_voxels}")
+        if not 1 <= self.fast.mesh_sheet_min_in_plane <= 8:
+            raise SettingsError("fast.mesh_sheet_min_in_plane",
+                                f"expected a count in [1, 8], got {self.fast.mesh_sheet_min_in_plane}")
         if not 0 <= self.fast.mesh_hull_inset_max_voxels <= 8:
             raise SettingsError("fast.mesh_hull_inset_max_voxels",
                                 f"expected voxels in [0, 8] (0: any thickness), got {self.fast.mesh_hull_inset_max_voxels}")

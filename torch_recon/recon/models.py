@@ -333,10 +333,14 @@ class FastModel(ReconstructionModel):
             + self.fc.mesh_level_shift_voxels * slope
         half = max(min(slope, level - self.fc.raw_free, self.fc.raw_occupied - level), 1e-3)   # inside the init's clamp
         raw = self.grid.raw_xyz().detach().clamp(level - half, level + half)
+        keep = None if self.thin_parts is None else self.thin_parts[0, 0].permute(2, 1, 0)
         if self.fc.mesh_hull_inset_voxels > 0:
-            keep = None if self.thin_parts is None else self.thin_parts[0, 0].permute(2, 1, 0)
             raw = binary_boundary_inset(raw, level, half, self.fc.mesh_hull_inset_voxels,
                                         self.fc.mesh_hull_inset_max_voxels, keep, self.fc.mesh_hull_inset_min_voxels)
+        if self.fc.mesh_sheet_inset_voxels > 0 or self.fc.mesh_lone_inset_voxels > 0:     # thin_sheets.py
+            from .thin_sheets import sheet_inset
+            raw = sheet_inset(raw, level, half, self.fc.mesh_sheet_inset_voxels, self.fc.mesh_sheet_min_in_plane, keep,
+                              self.fc.mesh_sheet_max_voxels, self.fc.mesh_lone_inset_voxels)
         return raw.cpu().numpy(), level
 
     def mesh_inward(self, volume, level: float):
