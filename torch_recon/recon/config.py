@@ -104,9 +104,11 @@ class FastConfig:
     explain_pick: str = "segment"     # 'segment': each shadowed segment's blocker is its own best-ranked carved voxel;
                                       # 'cover': the blockers are chosen together, greedily the carved voxel crossed by
                                       # the most still-unblocked segments / (lit crossings + 1) ^ explain_cover_lit_power
-                                      # (recon/shadow_cover.py): a wall voxel a whole shadow shares beats the lamp
-                                      # shade's less-lit interior that one segment alone ranks first (session 14)
-    explain_cover_lit_power: float = 0.5  # 'cover' only: how much a voxel's lit crossings count against it
+                                      # (recon/shadow_cover.py); 'near_cover': each segment's best voxel at or next to a
+                                      # cover voxel. Session 14, thin-structures start field F@2cm / hidden R 0.815 /
+                                      # 0.881: cover 0.793 / 0.719 (the shade's lumps go, P@5cm 0.89 -> 0.98, and most
+                                      # of its walls: one blocker per shadow), near_cover 0.822 / 0.862: opt-in
+    explain_cover_lit_power: float = 0.5  # 'cover' / 'near_cover': how much a voxel's lit crossings count against it
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
     lit_path_tolerance_voxels: float = 1.0  # > 0: a lit pair whose measured path is farther than this (voxels; at
                                       # least half a time bin) from the path through its pixel's visible point x got
@@ -219,18 +221,26 @@ class FastConfig:
     mesh_hull_inset_min_voxels: int = 2   # ... and at least this many (2: a one-voxel leg or blocker keeps its faces).
                                           # Session 12, with lit_path_tolerance_voxels 1: thin-structures F@2cm 0.816 ->
                                           # 0.837; alone it cost dark-room's chair hidden R 0.007 (docs/reconstruction.md)
-    mesh_sheet_inset_voxels: float = 0.0  # > 0: the mesh field's one-voxel sheets (free on both sides across, at least
-                                          # mesh_sheet_min_in_plane of 8 in-plane neighbours occupied: a lamp-shade wall
-                                          # the shadows put back) get both faces this far inside their voxel faces
-                                          # (recon/thin_sheets.py): a 1 cm wall anywhere in its 3.2 cm voxel, not a whole
-                                          # voxel; legs and poles (columns) keep theirs. 0: off (session 14)
-    mesh_sheet_min_in_plane: int = 4      # ... a sheet: at least this many of the 8 in-plane neighbours occupied
+    mesh_sheet_inset_voxels: float = 0.0  # > 0: sheets of the mesh field (runs of 1..mesh_sheet_max_voxels from saturated
+                                          # free space to free space again, at least mesh_sheet_min_in_plane of the 8
+                                          # in-plane neighbours occupied: a lamp-shade wall) get their faces this far
+                                          # inside the voxel faces (recon/thin_sheets.py): a 1 cm wall lies somewhere in
+                                          # its 3.2 cm voxel. Session 14 (re-export of main's fits), 0.35 with max 2:
+                                          # thin-structures F@2cm / hidden R 0.838 / 0.866 -> 0.846 / 0.872 (table top's
+                                          # underside 0.933 -> 0.945, lamp 0.743 -> 0.748), curved-wall +0.004, but
+                                          # cave-chair 0.944 / 0.920 -> 0.940 / 0.906 (its backrest's back, back legs):
+                                          # opt-in; 0: off
+    mesh_sheet_min_in_plane: int = 4      # ... a sheet: at least this many of the 8 in-plane neighbours occupied (6:
+                                          # cave-chair 0.944 / 0.917, but thin-structures only 0.840 / 0.867)
     mesh_sheet_max_voxels: int = 1        # ... and at most this many voxels thick (2: also the two-voxel slabs a wall
                                           # straddling a voxel face leaves, where training left them unsaturated and
-                                          # mesh_hull_inset_voxels does not reach them)
+                                          # mesh_hull_inset_voxels does not reach them; max 1 at 0.35: 0.843 / 0.865)
+    mesh_sheet_unseen_sides: bool = False  # ... and only where neither side is space the sensor saw through (with 0.35,
+                                          # max 2: thin-structures 0.847 / 0.872, cave-chair 0.942 / 0.912)
     mesh_lone_inset_voxels: float = 0.0   # > 0: a voxel of the mesh field with no occupied 6-neighbour (a lone restored
                                           # blocker: 57 % of thin-structures' lie beyond 3.2 cm of any surface, session 13)
-                                          # keeps a blob this far inside its voxel faces (thin_sheets.py); 0: off
+                                          # keeps a blob this far inside its voxel faces (thin_sheets.py). 0.35: thin-
+                                          # structures 0.838 / 0.866 -> 0.834 / 0.853 (the pole's top); 0: off
     mesh_hull_shrink_voxels: float = 0.5  # > 0: the mesh vertices of the hidden hull (no measured surface's ramp, thin
                                           # part, restored blocker or camera-free voxel beside them) are smoothed inward,
                                           # at most this far (recon/hull_subvoxel.py; a visual hull over-estimates its

@@ -339,8 +339,10 @@ class FastModel(ReconstructionModel):
                                         self.fc.mesh_hull_inset_max_voxels, keep, self.fc.mesh_hull_inset_min_voxels)
         if self.fc.mesh_sheet_inset_voxels > 0 or self.fc.mesh_lone_inset_voxels > 0:     # thin_sheets.py
             from .thin_sheets import sheet_inset
+            from .hull_subvoxel import camera_free
+            seen = camera_free(self, self.grid.box) if self.fc.mesh_sheet_unseen_sides else None
             raw = sheet_inset(raw, level, half, self.fc.mesh_sheet_inset_voxels, self.fc.mesh_sheet_min_in_plane, keep,
-                              self.fc.mesh_sheet_max_voxels, self.fc.mesh_lone_inset_voxels)
+                              self.fc.mesh_sheet_max_voxels, self.fc.mesh_lone_inset_voxels, seen)
         return raw.cpu().numpy(), level
 
     def mesh_inward(self, volume, level: float):

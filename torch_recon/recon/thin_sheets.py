@@ -4,8 +4,8 @@ A 1 cm lamp-shade wall that the shadows put back (restored blockers, `init.expla
 crossed is a sheet of whole 3.2 cm voxels, free on both sides across it. Marching cubes puts its two faces half a
 voxel either side of the voxel centre, and the wall lies anywhere inside: one face is up to 2.7 cm from it (session
 14: 2-3 cm samples are 13.5 % of the lamp's, more than its lumps beyond 5 cm). Lowering the sheet's voxels so that
-both crossings lie `inset` voxel inside the face puts them (0.5 - inset) voxel from the centre: at inset 0.25 every
-face of a wall anywhere in the voxel is within 0.8 cm + the wall's half thickness of it. A leg or a pole (a column:
+both crossings lie `inset` voxel inside the face puts them (0.5 - inset) voxel from the centre: at inset 0.25 (0.8 cm)
+each face lies within 1.9 cm of a 1 cm wall anywhere in the voxel (the whole voxel: up to 2.7 cm). A leg or a pole (a column:
 occupied in-plane neighbours only along it) keeps its faces: the part there may lie off the voxel's centre
 (the lamp pole's top, session 12). Training lowers the raw density of the hull and of restored voxels without
 emptying them (opacity still 1): a voxel counts as occupied here when above the lowered value, saturated or not.
@@ -59,15 +59,18 @@ def lone_voxels(occupied: torch.Tensor) -> torch.Tensor:
 
 
 def sheet_inset(clipped: torch.Tensor, level: float, half: float, inset_voxels: float, min_in_plane: int = 4,
-                keep=None, max_run: int = 1, lone_inset_voxels: float = 0.0) -> torch.Tensor:
+                keep=None, max_run: int = 1, lone_inset_voxels: float = 0.0, seen=None) -> torch.Tensor:
     """`clipped` (raw density clipped to [level - half, level + half], nx, ny, nz) with the voxels of sheets up to
     `max_run` voxels thick (`one_voxel_sheets` of the voxels above the lowered value) lowered so that their crossings
     with saturated free neighbours lie `inset_voxels` inside the midpoint (as `models.binary_boundary_inset` lowers
     saturated two-voxel slabs). keep: voxels never lowered (thin parts); a voxel next to a measured surface's outer
-    ramp is never lowered either."""
+    ramp is never lowered either. seen: voxels (nx, ny, nz bool) the sensor saw through: free space there does not
+    end a sheet (the slab behind a measured face is that part's thickness, a chair's seat, not a wall inside it)."""
     target = level - half + half / (0.5 + inset_voxels)
     occ = clipped > target      # training lowers the hull's raw (opacity still 1): saturated or not, above the target
     free = clipped <= level - half + 1e-4
+    if seen is not None:
+        free = free & ~seen.to(free.device)
     ramp = (clipped > level - half + 1e-4) & (clipped < level)
     lower = one_voxel_sheets(occ, free, min_in_plane, max_run)
     for axis in range(3):

@@ -67,3 +67,13 @@ def test_a_trained_unsaturated_wall_and_a_two_voxel_slab_are_placed_too():
     assert float(one[6, 5, 5]) == LEVEL + HALF
     two = sheet_inset(raw, LEVEL, HALF, 0.25, max_run=2)
     assert float(two[6, 5, 5]) == pytest.approx(target) and float(two[7, 5, 5]) == pytest.approx(target)
+
+
+def test_space_the_sensor_saw_through_does_not_end_a_sheet():
+    """`fast.mesh_sheet_unseen_sides`: a slab with camera-free space on one side is a part's thickness behind its
+    seen face (a chair's seat), not a wall somewhere inside the voxel."""
+    raw = _field()
+    seen = torch.zeros_like(raw, dtype=torch.bool)
+    seen[2] = True                                              # the sensor saw the space at x = 2, before the wall
+    assert float(sheet_inset(raw, LEVEL, HALF, 0.25, seen=seen)[3, 5, 5]) == LEVEL + HALF
+    assert float(sheet_inset(raw, LEVEL, HALF, 0.25)[3, 5, 5]) < LEVEL + HALF
