@@ -19,7 +19,7 @@ import torch
 
 from ..contract.frames import pixel_rays
 from ..device import resolve_device
-from ..measurements import Measurements
+from ..measurements import Measurements, MeasurementsError
 from .config import FitConfig
 from .data import build_ray_data
 from .grid_size import sensor_grid
@@ -86,6 +86,9 @@ def source_path(source) -> Path:
     path = Path(source)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such dataset directory or measurements file")
+    if path.is_file() and path.suffix.lower() == ".json":   # a dataset's own dataset.json, a fit.json, ...
+        raise MeasurementsError(f"{path}: expected a dataset directory (the folder holding dataset.json: "
+                                f"{path.parent}) or a measurements .npz, got a JSON file")
     return path
 
 
