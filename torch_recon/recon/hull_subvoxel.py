@@ -17,8 +17,9 @@ import torch.nn.functional as F
 
 from .data import lit_path_tolerance, unexplained_lit
 from .hull_trim import sole_blockers
-from .init import accumulate_crossings, carving_pixel_mask, segment_counts, pair_segments
 from .sampler import ray_box
+from .segment_crossings import accumulate_crossings, pair_segments, segment_counts
+from .voxel_evidence import carving_pixel_mask
 
 #: Laplacian steps of the inward smoothing (each moves a vertex half-way to its neighbours' mean at most)
 SHRINK_ITERATIONS = 10

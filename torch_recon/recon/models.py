@@ -103,7 +103,7 @@ class FastModel(ReconstructionModel):
         return start
 
     def restored_blockers(self):
-        """The current grid's restored blockers (`init.explain_shadows`, nx, ny, nz bool) from its start field,
+        """The current grid's restored blockers (`voxel_evidence.explain_shadows`, nx, ny, nz bool) from its start field,
         built again only where none was built on this grid (a resumed fit)."""
         if self._restored is None or tuple(self._restored.shape) != tuple(self.grid.box.shape):
             self._initial(box=self.grid.box)

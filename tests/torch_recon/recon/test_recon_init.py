@@ -8,7 +8,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from torch_recon.recon.fields import GridBox  # noqa: E402
-from torch_recon.recon.init import RESTORED, explain_shadows  # noqa: E402
+from torch_recon.recon.voxel_evidence import RESTORED, explain_shadows  # noqa: E402
 from torch_recon.recon.visible_surface_init import _depth_normals  # noqa: E402
 
 
@@ -70,7 +70,8 @@ def test_space_the_sensor_saw_through_beside_an_objects_edge_starts_empty():
     from tests.support.recon_fixtures import BOX_HI, BOX_LO, box_floor_measurements
     from tests.torch_recon.recon.test_recon_fit import small_config
     from torch_recon.recon.data import build_ray_data
-    from torch_recon.recon.init import evidence_grid, grid_bbox, in_view, initial_grid
+    from torch_recon.recon.init import grid_bbox, in_view, initial_grid
+    from torch_recon.recon.voxel_evidence import evidence_grid
     from torch_recon.recon.visible_surface_init import surface_offset
 
     meas = box_floor_measurements(32)

@@ -1,5 +1,5 @@
 """A post thinner than a pixel, seen past by the sensor and grazed by lit rays, survives the fast start
-because the shadows it casts from several spots cross it (recon/init.py `explain_shadows`)."""
+because the shadows it casts from several spots cross it (recon/voxel_evidence.py `explain_shadows`)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from tests.support.recon_fixtures import POST_SENSOR, wall_pixel_rays  # noqa: E
 from torch_recon.recon.data import RayData  # noqa: E402
 from torch_recon.recon.fields import GridBox  # noqa: E402
 from torch_recon.recon.hull_trim import unneeded_hull  # noqa: E402
-from torch_recon.recon.init import NEAREST, RESTORED, evidence_grid  # noqa: E402
+from torch_recon.recon.voxel_evidence import NEAREST, RESTORED, evidence_grid  # noqa: E402
 from torch_recon.recon.visible_surface_init import dilate_cube  # noqa: E402
 
 POST_XY, POST_R, POST_TOP = np.array([0.55, 0.45]), 0.02, 0.6
