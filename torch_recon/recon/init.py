@@ -110,8 +110,9 @@ def in_view(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_ax
 
 
 def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0.0, view=None, surface=None,
-                 seen_free=None, thin_points=None, restored_out: list | None = None):
-    """The fast mode's starting field (cfg: FastConfig) and the voxels the mesh may face (nx, ny, nz) bool.
+                 seen_free=None, thin_points=None):
+    """The fast mode's starting field (cfg: FastConfig), the voxels the mesh may face (nx, ny, nz) bool and the
+    voxels' evidence it was built from (`voxel_evidence.VoxelEvidence`: the mesh export reads it back).
 
     Known free (seen through by the sensor or crossed by a lit secondary ray): empty. Everything else
     in the sensor's view (`view`, bool (nx, ny, nz)) is occupied (the shadow hull: every shadowed ray
@@ -125,16 +126,14 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     (beside an object's silhouette, where the plane of its face would extend).
     surface: `visible_surface(data, box)` (points, normals) when already computed; thin_points likewise
     `thin_parts.thin_part_cloud` (the model's frozen thin-part mask uses the same points).
-    restored_out: a list that gets the restored blockers (label 4, nx, ny, nz bool) appended, for the mesh.
     """
     from .beyond_view import lit_side_of_hull, out_of_view_spots, unneeded_beside_view
     from .unobserved import bounding_planes, on_planes, shell_signed_distance
 
-    label, shadow_count = configured_evidence_grid(data, box, cfg, secondary_offset_m, seen_free,
-                                                   count_shadow=cfg.trim_hull_voxels > 0, thin_points=thin_points)
+    evidence, shadow_count = configured_evidence_grid(data, box, cfg, secondary_offset_m, seen_free,
+                                                      count_shadow=cfg.trim_hull_voxels > 0, thin_points=thin_points)
+    label = evidence.label
     free = (label == 2) | (label == 3)
-    if restored_out is not None:
-        restored_out.append(label == RESTORED)
     dev = data.pixel_dirs.device
     surface = visible_surface(data, box) if surface is None else surface
     planes = (bounding_planes(*surface, data.sensor_origin.cpu().numpy(), data.spot_points.cpu().numpy(),
@@ -203,5 +202,5 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
                                          cfg.thin_part_centre, thin_points).to(dev)
         below = torch.where(label == NEAREST, torch.tensor(cfg.raw_free, device=dev), raw)
         raw = torch.where(torch.isfinite(tube), torch.maximum(below, ramp(tube)), raw)
-    return DensityGrid.from_xyz(box, raw.float(), cfg.density_scale), mesh_free
+    return DensityGrid.from_xyz(box, raw.float(), cfg.density_scale), mesh_free, evidence
 

@@ -73,11 +73,10 @@ class FastModel(ReconstructionModel):
         self.bbox = grid_bbox(data, self.fc.resolution, self.fc.bbox_margin_voxels)
         self._surface = None    # (voxel, visible surface) of the latest grid: the start field and the mesh share it
         self._thin_points = None    # (voxel, thin_part_cloud) of the latest grid: the start field and `thin_parts`
-        self._restored = None       # the latest start field's restored blockers (nx, ny, nz bool): the mesh keeps them
+        self.evidence = None        # the latest start field's VoxelEvidence: the mesh export reads it back
+        self._start_raw = None      # ... and its raw density (nx, ny, nz), where the hull's placement reads it
         self.level = 0 if self.fc.coarse_fraction > 0 and self.fc.coarse_resolution < self.fc.resolution else 1
         self.grid, self.free = self._initial(self.fc.coarse_resolution if self.level == 0 else self.fc.resolution)
-        self._start_raw = (self.grid.raw_xyz().detach().clone()     # the hull's placement reads the start's labels
-                           if self.level == 1 and self.fc.mesh_hull_shrink_voxels > 0 else None)
         # lit pairs whose light came from another surface in the pixel: the start field carved from where their
         # own path puts it; training, which pairs each with the rendered depth, leaves them out
         voxel = float(torch.as_tensor(self.bbox[1] - self.bbox[0]).max()) / self.fc.resolution
@@ -92,22 +91,23 @@ class FastModel(ReconstructionModel):
         self.make_optimizer()
 
     def _initial(self, res=None, box=None):
-        """The start field and its free space on `box`, or on a new box of `res` voxels along the longest side."""
+        """The start field and its free space on `box`, or on a new box of `res` voxels along the longest side; its
+        evidence (and, for the hull's inward smoothing, its raw density) are kept for the mesh export."""
         box = GridBox(self.bbox[0], self.bbox[1], res).to(self.device) if box is None else box
         seen = coarse_sensor_seen_free(self.data, box, self.fc, self.meta)
-        restored = []
-        start = initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box),
-                             self.visible_surface(box), seen_free=seen, thin_points=self.thin_points(box),
-                             restored_out=restored)
-        self._restored = restored[0]
-        return start
+        start, free, self.evidence = initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box),
+                                                  self.visible_surface(box), seen_free=seen,
+                                                  thin_points=self.thin_points(box))
+        if self.fc.mesh_hull_shrink_voxels > 0:     # a copy: training changes the grid in place
+            self._start_raw = start.raw_xyz().detach().clone()
+        return start, free
 
-    def restored_blockers(self):
-        """The current grid's restored blockers (`voxel_evidence.explain_shadows`, nx, ny, nz bool) from its start field,
-        built again only where none was built on this grid (a resumed fit)."""
-        if self._restored is None or tuple(self._restored.shape) != tuple(self.grid.box.shape):
+    def start_evidence(self):
+        """The current grid's start-field `VoxelEvidence` (labels, lit crossings, restored blockers), built again only
+        where none was built on this grid (a resumed fit; the fine level of a coarse-to-fine fit without freezing)."""
+        if self.evidence is None or tuple(self.evidence.label.shape) != tuple(self.grid.box.shape):
             self._initial(box=self.grid.box)
-        return self._restored
+        return self.evidence
 
     def training_data(self, data: RayData) -> RayData:
         return self._training_data if data is self.data else data
@@ -346,9 +346,9 @@ class FastModel(ReconstructionModel):
             return None
         from .hull_subvoxel import SHRINK_ITERATIONS, shrinkable_hull
         if self._start_raw is None or tuple(self._start_raw.shape) != tuple(self.grid.box.shape):
-            self._start_raw = self._initial(box=self.grid.box)[0].raw_xyz().detach()
+            self._initial(box=self.grid.box)        # (sets the evidence of this grid too)
         vol = torch.as_tensor(volume)
-        movable = shrinkable_hull(self, self._start_raw, self.fc.mesh_hull_shrink_graze_samples,
+        movable = shrinkable_hull(self, self._start_raw, self.evidence, self.fc.mesh_hull_shrink_graze_samples,
                                   vol >= level + 0.5 * (float(vol.max()) - level))   # saturated: level + half
         return movable.cpu().numpy(), self.fc.mesh_hull_shrink_voxels * self.grid.box.voxel, SHRINK_ITERATIONS
 

@@ -150,8 +150,8 @@ def voxel_classes(data, box: GridBox, opacity, level, fast: dict, meta: dict, of
     known = {f.name for f in dataclasses.fields(FastConfig)}
     cfg = FastConfig(**{k: v for k, v in fast.items() if k in known})
     # labelled as the fit's start field on its final grid (a coarse sensor's seen-free space included)
-    label, _ = configured_evidence_grid(data, box, cfg, offset_m,
-                                        seen_free=coarse_sensor_seen_free(data, box, cfg, meta))
+    seen = coarse_sensor_seen_free(data, box, cfg, meta)
+    label = configured_evidence_grid(data, box, cfg, offset_m, seen_free=seen)[0].label
     view = in_view(data, box, meta["camera_to_world"], meta["fov_rad"], meta["fov_axis"])
     occupied = torch.as_tensor(opacity >= level, device=label.device)
     cls = torch.full(box.shape, FREE, dtype=torch.int8, device=label.device)

@@ -79,10 +79,10 @@ def test_space_the_sensor_saw_through_beside_an_objects_edge_starts_empty():
     cfg = small_config(steps=0).fast
     box = GridBox(*grid_bbox(data, cfg.resolution, cfg.bbox_margin_voxels), cfg.resolution)
     view = in_view(data, box, np.asarray(meas.camera_to_world), meas.fov_rad, meas.fov_axis)
-    label, _ = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, 0.0, cfg.step_voxels,
-                             cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
-                             explain_shadow_rays=cfg.explain_shadows, explain_camera_free=cfg.explain_camera_free,
-                             nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface)
+    label = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, 0.0, cfg.step_voxels,
+                          cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
+                          explain_shadow_rays=cfg.explain_shadows, explain_camera_free=cfg.explain_camera_free,
+                          nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface)[0].label
     raw = initial_grid(data, box, cfg, 0.0, view)[0].raw_xyz().detach()
     centres = box.centres()
     beside = ((centres[..., 0].abs() > BOX_HI[0]) & (centres[..., 1] > BOX_LO[1]) & (centres[..., 1] < BOX_HI[1])

@@ -54,8 +54,8 @@ def test_it_no_longer_carves_the_block_under_the_top():
     box = GridBox([0.0, 0.0, 0.0], [1.2, 1.2, 2.2], 44)      # 5 cm voxels
     under_top = box.cell_index(torch.tensor([[0.8, 0.5, 0.545]]))[0][0].tolist()   # on the segment top -> L_BELOW
     above_floor = box.cell_index(torch.tensor([[0.8, 0.5, 0.3]]))[0][0].tolist()   # on the segment floor -> L_BELOW
-    old, _ = evidence_grid(data, box)
-    new, _ = evidence_grid(data, box, lit_path_tolerance_m=0.05)
+    old = evidence_grid(data, box)[0].label
+    new = evidence_grid(data, box, lit_path_tolerance_m=0.05)[0].label
     assert old[tuple(under_top)] == 3 and new[tuple(under_top)] != 3
     assert new[tuple(above_floor)] == 3
 
