@@ -8,6 +8,7 @@ holds a lit segment within half a voxel of its centre, and the faces lie inside 
 came near, so the mesh's hull vertices are smoothed inward by a bounded amount (mesh_export `inward_smoothing`,
 `fast.mesh_hull_shrink_voxels`): a staircase's convex steps are cut. Not at a shadow's edge: a shadowed segment
 that grazes the hull there needs its blocker in that voxel (the object reaches it).
+`binary_boundary_inset` (`fast.mesh_hull_inset_voxels`) places a kept hull voxel's faces inside their voxel face.
 Which voxels lit segments cross is read back from the start field's evidence (`voxel_evidence.VoxelEvidence`, the
 same march: session 14, issue 11), not marched again at export.
 """
@@ -87,3 +88,51 @@ def shrinkable_hull(model, start_raw: torch.Tensor, evidence: VoxelEvidence, gra
         edge = sole_blockers(box, solid, pair_segments(data, data.shadowed & on_sub, off), step, max_samples=graze_samples)
         hull &= ~edge.reshape(box.shape)
     return hull
+
+
+def binary_boundary_inset(clipped, level: float, half: float, inset_voxels: float, max_thickness_voxels: int = 0,
+                          keep=None, min_thickness_voxels: int = 1) -> torch.Tensor:
+    """Marching cubes crosses from a saturated free voxel (level - half) to a saturated occupied one
+    (level + half) at their midpoint, a voxel face. Where a kept hull voxel holds the part somewhere inside
+    (flat and thin parts, restored blockers) the true surface lies inside that face: lower the occupied voxels
+    next to a saturated free one (6-neighbours) so that this crossing lies `inset_voxels` inside the midpoint.
+    A one-voxel part then keeps a thickness of 1 - 2 inset voxels. (Where whole-voxel carving already put the
+    hull inside the part, the organic blob, it moves the wrong way.)
+    max_thickness_voxels > 0: only where the occupied run across that face, from the free neighbour on, is
+    min_thickness_voxels .. max_thickness_voxels long before free space again (a slab the part lies somewhere
+    inside: a 1 cm lamp-shade wall straddling two 3.2 cm voxels); a thick hull keeps its faces, and a run of one
+    voxel (a leg or a restored blocker, the part at its centre) too with min 2. keep: bool (nx, ny, nz), voxels
+    never lowered (thin parts placed at their voxel's centre by measurement). A voxel next to a measured
+    surface's outer ramp is never lowered (that surface would move).
+    clipped: (nx, ny, nz) raw density clipped to [level - half, level + half]."""
+    occ = clipped >= level + half - 1e-4
+    m = 1 + max(int(max_thickness_voxels), 0)
+    pad = lambda b: F.pad(b.float()[None, None], (m,) * 6)[0, 0] > 0     # noqa: E731
+    free = pad(clipped <= level - half + 1e-4)
+    ramp = pad((clipped > level - half + 1e-4) & (clipped < level))      # a measured surface's outer ramp
+
+    def at(mask, axis, t):      # mask[v + t e_axis] for every voxel v
+        sl = [slice(m, m + n) for n in clipped.shape]
+        sl[axis] = slice(m + t, m + t + clipped.shape[axis])
+        return mask[tuple(sl)]
+
+    lower = torch.zeros_like(occ)
+    for axis in range(3):
+        for sign in (-1, 1):
+            face = at(free, axis, sign)
+            if max_thickness_voxels > 0:     # free again after a run of min..max voxels on the other side
+                run, thin = torch.ones_like(occ), torch.zeros_like(occ)
+                for t in range(1, int(max_thickness_voxels) + 1):
+                    after = at(free, axis, -sign * t)
+                    if t >= min_thickness_voxels:
+                        thin = thin | (run & after)
+                    run = run & ~after
+                face = face & thin      # (not in place: `at` gives views of the masks)
+            lower |= face
+    for axis in range(3):       # lowering a voxel next to a measured surface would move that surface too
+        for sign in (-1, 1):
+            lower &= ~at(ramp, axis, sign)
+    lower &= occ if keep is None else occ & ~keep.to(occ.device)
+    out = clipped.clone()
+    out[lower] = level - half + half / (0.5 + inset_voxels)
+    return out
