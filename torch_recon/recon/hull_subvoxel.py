@@ -42,7 +42,8 @@ def _next_to(mask: torch.Tensor) -> torch.Tensor:
 def hull_voxels(start_raw: torch.Tensor, raw_free: float, raw_occupied: float, lit_crossed: torch.Tensor, keep=None):
     """Occupied voxels of the start field `start_raw` (nx, ny, nz; training barely moves them, session 5) that no
     lit segment crossed (`lit_crossed`, bool; the shadow hull proper: not a restored blocker, which the light
-    crossed, nor a thin part in `keep`), next to a free voxel and not next to a measured surface's ramp (that surface would move)."""
+    crossed, nor a thin part in `keep`), next to a free voxel and not next to a measured surface's ramp (that
+    surface would move)."""
     occ = start_raw >= raw_occupied - 1e-3
     free = start_raw <= raw_free + 1e-3
     ramp = ~occ & ~free

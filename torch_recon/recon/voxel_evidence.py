@@ -123,7 +123,8 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     """`VoxelEvidence`: per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
     blocker of a shadowed segment (with `explain_shadow_rays`), 6 a part under a pixel wide (with
     `nearest_surface`: `thin_part_points`), and the voxels lit segments cross; and the count of shadowed secondary
-    segments through each voxel (with `count_shadow`; zeros without). With `nearest_free` a camera ray is free only up to its pixel's nearest depth.
+    segments through each voxel (with `count_shadow`; zeros without). With `nearest_free` a camera ray is free only
+    up to its pixel's nearest depth.
     seen_free: optional bool (nx, ny, nz), voxels the pixels' footprints saw through (camera-free as well).
     thin_points: `thin_parts.thin_part_cloud` of these settings when already computed.
     lit_path_tolerance_m > 0: a lit pair whose path disagrees with its pixel's visible point by more carves from
