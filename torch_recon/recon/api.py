@@ -215,7 +215,7 @@ def _kept_island_centres(model):
     if getattr(model, "fc", None) is not None and model.fc.mesh_keep_restored_voxels > 0:
         from .shadow_blockers import restored_runs
 
-        restored = restored_runs(model.restored_blockers(), model.fc.mesh_keep_restored_voxels)
+        restored = restored_runs(model.start_evidence().restored, model.fc.mesh_keep_restored_voxels)
         restored = restored.to(model.grid.box.bbox_min.device)
         mask = restored if mask is None else mask.to(restored.device) | restored
     if mask is None:
