@@ -17,8 +17,8 @@ from .fields import DensityGrid, GridBox
 from .hull_subvoxel import SHRINK_ITERATIONS, binary_boundary_inset, shrinkable_hull
 from .init import grid_bbox, in_view, initial_grid
 from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total_loss
-from .renderer import render_field, render_pruned, secondary_rays
-from .sampler import importance_positions, merged_intervals, ray_box, uniform_intervals
+from .renderer import render_pruned, secondary_rays
+from .sampler import ray_box
 from .smoothness import NormalConsistencyPrior
 from .thin_parts import thin_part_cloud, thin_part_signed_distance, thin_part_voxels
 from .visible_surface_init import (coarse_sensor_seen_free, in_front_of_visible_surface, seen_depth,
