@@ -70,6 +70,12 @@ def test_fit_cli_no_uv_skips_the_atlas(meas_file, tmp_path, run_cli):
 def test_fit_cli_errors_are_one_line(meas_file, tmp_path, run_cli):
     p = run_cli(tmp_path / "missing", "--out", tmp_path / "o")
     assert p.returncode == 2 and "no such dataset" in p.stderr and "Traceback" not in p.stderr
+    ds_json = tmp_path / "ds" / "dataset.json"      # the dataset's JSON instead of its folder
+    ds_json.parent.mkdir()
+    ds_json.write_text("{}")
+    p = run_cli(ds_json, "--out", tmp_path / "o")
+    assert p.returncode == 2 and "expected a dataset directory" in p.stderr and str(ds_json.parent) in p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1 and not (tmp_path / "o").exists()
     p = run_cli(meas_file, "--out", tmp_path / "o", "--set", "fast.voxels=3")
     assert p.returncode == 2 and "unknown setting" in p.stderr and "Traceback" not in p.stderr
     bad = tmp_path / "bad.json"

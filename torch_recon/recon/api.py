@@ -19,7 +19,7 @@ import torch
 
 from ..contract.frames import pixel_rays
 from ..device import resolve_device
-from ..measurements import Measurements
+from ..measurements import Measurements, MeasurementsError
 from .config import FitConfig
 from .data import build_ray_data
 from .grid_size import sensor_grid
@@ -86,6 +86,9 @@ def source_path(source) -> Path:
     path = Path(source)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such dataset directory or measurements file")
+    if path.is_file() and path.suffix.lower() == ".json":   # a dataset's own dataset.json, a fit.json, ...
+        raise MeasurementsError(f"{path}: expected a dataset directory (the folder holding dataset.json: "
+                                f"{path.parent}) or a measurements .npz, got a JSON file")
     return path
 
 
@@ -212,7 +215,7 @@ def _kept_island_centres(model):
     if getattr(model, "fc", None) is not None and model.fc.mesh_keep_restored_voxels > 0:
         from .shadow_blockers import restored_runs
 
-        restored = restored_runs(model.restored_blockers(), model.fc.mesh_keep_restored_voxels)
+        restored = restored_runs(model.start_evidence().restored, model.fc.mesh_keep_restored_voxels)
         restored = restored.to(model.grid.box.bbox_min.device)
         mask = restored if mask is None else mask.to(restored.device) | restored
     if mask is None:

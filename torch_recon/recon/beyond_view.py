@@ -20,6 +20,7 @@ import torch
 
 from .data import RayData
 from .fields import GridBox
+from .segment_crossings import marching_cells, pair_segments
 from .visible_surface_init import dilate_cube
 
 
@@ -61,7 +62,6 @@ def _shadowed_samples(data: RayData, box: GridBox, flat_hull: torch.Tensor, spot
                       step: float, chunk_samples: int):
     """Per chunk of the `spots`' shadowed segments, samples ordered from x to the spot: (voxel index (long,
     0 where outside the box), inside the box, inside the hull)."""
-    from .init import marching_cells, pair_segments
 
     seg = pair_segments(data, data.shadowed & torch.isin(data.pair_spot, spots), off)
     if seg[0].shape[0] == 0:

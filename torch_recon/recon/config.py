@@ -250,7 +250,7 @@ class FastConfig:
                                           # other four within 0.001; without the silhouette rule organic-occluded's
                                           # occluder lost 0.06 hidden R (docs/reconstruction.md)
     mesh_keep_restored_voxels: int = 0  # > 0: the mesh's island cleanup also keeps a small island touching a restored
-                                      # blocker (init.explain_shadows, label 4) of a connected run (26-neighbours) of at
+                                      # blocker (voxel_evidence.explain_shadows, label 4) of a connected run (26-neighbours) of at
                                       # least this many restored voxels: a leg's restored one-voxel column breaks where
                                       # one voxel moves, and its lower part fell below the island size (as thin parts
                                       # are kept); lone restored voxels stay specks. Session 13, N = 3: thin-structures

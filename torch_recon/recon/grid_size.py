@@ -6,7 +6,7 @@ surface's ramps (a couple of voxels round each measured point) leave holes betwe
 shadow hull keeps every voxel between the lit secondary rays. A 32 x 32 px sensor on the 128 grid (4.4
 voxels a pixel on cave-chair) gave a lattice of blobs over the room (depth L1 0.84 m, spurious 42 %).
 `fast.max_voxels_per_pixel` caps the grid: at most that many voxels across one pixel's footprint at the
-far surfaces (the 95th percentile visible depth, `init.far_pixel_spacing`). At 128 px the footprint is
+far surfaces (the 95th percentile visible depth, `voxel_evidence.far_pixel_spacing`). At 128 px the footprint is
 about one voxel of the 128 grid and at 64 px about two, so the default grid (cap 2.2) stays 128 there; a
 32 px sensor gets a grid of 65 (cave-chair: depth L1 0.84 -> 0.33 m, the walls whole; the chair stays a
 blob, object F@2cm 0.23 -> 0.20: 32 px leaves about 3 x 5 pixels on it). A cap of 1.5 (grid 45 at 32 px)
@@ -27,7 +27,8 @@ from .data import RayData
 def sensor_grid_resolution(data: RayData, max_voxels_per_pixel: float) -> int | None:
     """Voxels along the longest side of the observed scene at which one pixel's footprint at the far surfaces
     spans `max_voxels_per_pixel` voxels; None when that cannot be said (no visible depth, a one-pixel image)."""
-    from .init import far_pixel_spacing, scene_bbox
+    from .init import scene_bbox
+    from .voxel_evidence import far_pixel_spacing
 
     spacing = far_pixel_spacing(data)
     if spacing is None or data.width < 2 or max_voxels_per_pixel <= 0:

@@ -20,6 +20,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from .segment_crossings import marching_cells
+
 
 def unneeded_hull(free: torch.Tensor, hull: torch.Tensor, shadow_count: torch.Tensor, surface_band: torch.Tensor,
                   depth_voxels: int) -> torch.Tensor:
@@ -56,7 +58,6 @@ def opening(solid: torch.Tensor, radius: int) -> torch.Tensor:
 
 def unblocked_segments(box, blocker: torch.Tensor, origins, dirs, near, far, step) -> torch.Tensor:
     """Per segment (bool (R,)): no marching sample lies in a `blocker` voxel (flat bool)."""
-    from .init import marching_cells
     hit = torch.zeros(origins.shape[0], dtype=torch.bool, device=origins.device)
     for rays, flat, keep in marching_cells(box, origins, dirs, near, far, step):
         flat = flat.where(keep, 0.0).long()
@@ -70,7 +71,6 @@ def sole_blockers(box, solid_flat: torch.Tensor, segments, step, max_samples: in
     `max_samples` marching samples of it, for at least `min_segments` segments: the segments graze the shadow
     caster there (the shadow's edge), so the caster certainly reaches that voxel (one segment may be a wrong
     shadow label)."""
-    from .init import marching_cells
     n_all = solid_flat.numel()
     count = torch.zeros(n_all + 1, dtype=torch.long, device=solid_flat.device)
     for _, flat, keep in marching_cells(box, *segments, step):
@@ -116,7 +116,6 @@ def outside_convex_closure(parts: torch.Tensor, anchors: torch.Tensor, margin: f
 def keep_blocked(box, solid: torch.Tensor, removed: torch.Tensor, segments, step) -> torch.Tensor:
     """`removed` less the voxels along every shadowed segment that `solid` blocked and `solid` less `removed`
     would not: the prior never clears a measured shadow."""
-    from .init import marching_cells
     flat_solid, flat_removed = solid.reshape(-1), removed.reshape(-1).clone()
     lost = (unblocked_segments(box, flat_solid & ~flat_removed, *segments, step)
             & ~unblocked_segments(box, flat_solid, *segments, step))

@@ -14,10 +14,11 @@ import torch.nn.functional as F
 from .config import FitConfig
 from .data import RayData, lit_path_tolerance, unexplained_lit, without_lit
 from .fields import DensityGrid, GridBox
+from .hull_subvoxel import SHRINK_ITERATIONS, binary_boundary_inset, shrinkable_hull
 from .init import grid_bbox, in_view, initial_grid
 from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total_loss
-from .renderer import render_field, render_pruned, secondary_rays
-from .sampler import importance_positions, merged_intervals, ray_box, uniform_intervals
+from .renderer import render_pruned, secondary_rays
+from .sampler import ray_box
 from .smoothness import NormalConsistencyPrior
 from .thin_parts import thin_part_cloud, thin_part_signed_distance, thin_part_voxels
 from .visible_surface_init import (coarse_sensor_seen_free, in_front_of_visible_surface, seen_depth,
@@ -73,11 +74,10 @@ class FastModel(ReconstructionModel):
         self.bbox = grid_bbox(data, self.fc.resolution, self.fc.bbox_margin_voxels)
         self._surface = None    # (voxel, visible surface) of the latest grid: the start field and the mesh share it
         self._thin_points = None    # (voxel, thin_part_cloud) of the latest grid: the start field and `thin_parts`
-        self._restored = None       # the latest start field's restored blockers (nx, ny, nz bool): the mesh keeps them
+        self.evidence = None        # the latest start field's VoxelEvidence: the mesh export reads it back
+        self._start_raw = None      # ... and its raw density (nx, ny, nz), where the hull's placement reads it
         self.level = 0 if self.fc.coarse_fraction > 0 and self.fc.coarse_resolution < self.fc.resolution else 1
         self.grid, self.free = self._initial(self.fc.coarse_resolution if self.level == 0 else self.fc.resolution)
-        self._start_raw = (self.grid.raw_xyz().detach().clone()     # the hull's placement reads the start's labels
-                           if self.level == 1 and self.fc.mesh_hull_shrink_voxels > 0 else None)
         # lit pairs whose light came from another surface in the pixel: the start field carved from where their
         # own path puts it; training, which pairs each with the rendered depth, leaves them out
         voxel = float(torch.as_tensor(self.bbox[1] - self.bbox[0]).max()) / self.fc.resolution
@@ -92,22 +92,23 @@ class FastModel(ReconstructionModel):
         self.make_optimizer()
 
     def _initial(self, res=None, box=None):
-        """The start field and its free space on `box`, or on a new box of `res` voxels along the longest side."""
+        """The start field and its free space on `box`, or on a new box of `res` voxels along the longest side; its
+        evidence (and, for the hull's inward smoothing, its raw density) are kept for the mesh export."""
         box = GridBox(self.bbox[0], self.bbox[1], res).to(self.device) if box is None else box
         seen = coarse_sensor_seen_free(self.data, box, self.fc, self.meta)
-        restored = []
-        start = initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box),
-                             self.visible_surface(box), seen_free=seen, thin_points=self.thin_points(box),
-                             restored_out=restored)
-        self._restored = restored[0]
-        return start
+        start, free, self.evidence = initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box),
+                                                  self.visible_surface(box), seen_free=seen,
+                                                  thin_points=self.thin_points(box))
+        if self.fc.mesh_hull_shrink_voxels > 0:     # a copy: training changes the grid in place
+            self._start_raw = start.raw_xyz().detach().clone()
+        return start, free
 
-    def restored_blockers(self):
-        """The current grid's restored blockers (`init.explain_shadows`, nx, ny, nz bool) from its start field,
-        built again only where none was built on this grid (a resumed fit)."""
-        if self._restored is None or tuple(self._restored.shape) != tuple(self.grid.box.shape):
+    def start_evidence(self):
+        """The current grid's start-field `VoxelEvidence` (labels, lit crossings, restored blockers), built again only
+        where none was built on this grid (a resumed fit; the fine level of a coarse-to-fine fit without freezing)."""
+        if self.evidence is None or tuple(self.evidence.label.shape) != tuple(self.grid.box.shape):
             self._initial(box=self.grid.box)
-        return self._restored
+        return self.evidence
 
     def training_data(self, data: RayData) -> RayData:
         return self._training_data if data is self.data else data
@@ -350,11 +351,10 @@ class FastModel(ReconstructionModel):
         (`fast.mesh_hull_shrink_voxels`, hull_subvoxel.py) of the mesh field `volume` (`surface_volume`), or None."""
         if self.fc.mesh_hull_shrink_voxels <= 0:
             return None
-        from .hull_subvoxel import SHRINK_ITERATIONS, shrinkable_hull
         if self._start_raw is None or tuple(self._start_raw.shape) != tuple(self.grid.box.shape):
-            self._start_raw = self._initial(box=self.grid.box)[0].raw_xyz().detach()
+            self._initial(box=self.grid.box)        # (sets the evidence of this grid too)
         vol = torch.as_tensor(volume)
-        movable = shrinkable_hull(self, self._start_raw, self.fc.mesh_hull_shrink_graze_samples,
+        movable = shrinkable_hull(self, self._start_raw, self.evidence, self.fc.mesh_hull_shrink_graze_samples,
                                   vol >= level + 0.5 * (float(vol.max()) - level))   # saturated: level + half
         return movable.cpu().numpy(), self.fc.mesh_hull_shrink_voxels * self.grid.box.voxel, SHRINK_ITERATIONS
 
@@ -386,54 +386,6 @@ class FastModel(ReconstructionModel):
         self.tau_step = st["tau_step"].to(self.device)
         self.make_optimizer()
         self.optimizer.load_state_dict(st["optimizer"])
-
-
-def binary_boundary_inset(clipped, level: float, half: float, inset_voxels: float, max_thickness_voxels: int = 0,
-                          keep=None, min_thickness_voxels: int = 1) -> torch.Tensor:
-    """Marching cubes crosses from a saturated free voxel (level - half) to a saturated occupied one
-    (level + half) at their midpoint, a voxel face. Where a kept hull voxel holds the part somewhere inside
-    (flat and thin parts, restored blockers) the true surface lies inside that face: lower the occupied voxels
-    next to a saturated free one (6-neighbours) so that this crossing lies `inset_voxels` inside the midpoint.
-    A one-voxel part then keeps a thickness of 1 - 2 inset voxels. (Where whole-voxel carving already put the
-    hull inside the part, the organic blob, it moves the wrong way.)
-    max_thickness_voxels > 0: only where the occupied run across that face, from the free neighbour on, is
-    min_thickness_voxels .. max_thickness_voxels long before free space again (a slab the part lies somewhere
-    inside: a 1 cm lamp-shade wall straddling two 3.2 cm voxels); a thick hull keeps its faces, and a run of one
-    voxel (a leg or a restored blocker, the part at its centre) too with min 2. keep: bool (nx, ny, nz), voxels
-    never lowered (thin parts placed at their voxel's centre by measurement). A voxel next to a measured
-    surface's outer ramp is never lowered (that surface would move).
-    clipped: (nx, ny, nz) raw density clipped to [level - half, level + half]."""
-    occ = clipped >= level + half - 1e-4
-    m = 1 + max(int(max_thickness_voxels), 0)
-    pad = lambda b: F.pad(b.float()[None, None], (m,) * 6)[0, 0] > 0     # noqa: E731
-    free = pad(clipped <= level - half + 1e-4)
-    ramp = pad((clipped > level - half + 1e-4) & (clipped < level))      # a measured surface's outer ramp
-
-    def at(mask, axis, t):      # mask[v + t e_axis] for every voxel v
-        sl = [slice(m, m + n) for n in clipped.shape]
-        sl[axis] = slice(m + t, m + t + clipped.shape[axis])
-        return mask[tuple(sl)]
-
-    lower = torch.zeros_like(occ)
-    for axis in range(3):
-        for sign in (-1, 1):
-            face = at(free, axis, sign)
-            if max_thickness_voxels > 0:     # free again after a run of min..max voxels on the other side
-                run, thin = torch.ones_like(occ), torch.zeros_like(occ)
-                for t in range(1, int(max_thickness_voxels) + 1):
-                    after = at(free, axis, -sign * t)
-                    if t >= min_thickness_voxels:
-                        thin = thin | (run & after)
-                    run = run & ~after
-                face = face & thin      # (not in place: `at` gives views of the masks)
-            lower |= face
-    for axis in range(3):       # lowering a voxel next to a measured surface would move that surface too
-        for sign in (-1, 1):
-            lower &= ~at(ramp, axis, sign)
-    lower &= occ if keep is None else occ & ~keep.to(occ.device)
-    out = clipped.clone()
-    out[lower] = level - half + half / (0.5 + inset_voxels)
-    return out
 
 
 def rendered_depth(r, far, min_opacity):

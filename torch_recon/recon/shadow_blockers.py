@@ -1,4 +1,4 @@
-"""Which carved voxel a shadowed segment gets back (`init.explain_shadows`): one next to what stayed occupied.
+"""Which carved voxel a shadowed segment gets back (`voxel_evidence.explain_shadows`): one next to what stayed occupied.
 
 A shadowed segment whose voxels were all lit-carved crosses a part the carving took (a 1 cm lamp-shade wall
 or a chair leg grazed by lit rays inside its 3.2 cm voxel). The part's carved voxels touch what stayed of it
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import torch
 
-#: evidence labels (`init.evidence_grid`) that are free space: 2 seen through by the sensor, 3 lit-carved
+#: evidence labels (`voxel_evidence.evidence_grid`) that are free space: 2 seen through by the sensor, 3 lit-carved
 FREE_LABELS = (2, 3)
 
 

@@ -1,7 +1,7 @@
 """Where to aim the next laser spots: a spot advisor from a first reconstruction (issue 11).
 
 Part of the hidden space is crossed by no lit secondary segment (spot -> visible lit point) of a capture:
-the fast fit keeps it as shadow hull (`init.evidence_grid` label 0), bounded by shadows only. A new spot l
+the fast fit keeps it as shadow hull (`voxel_evidence.evidence_grid` label 0), bounded by shadows only. A new spot l
 whose segments l -> x (x: a point the sensor sees) pass that space measures it: a lit segment carves every
 hull voxel it crosses, a shadowed one says a blocker lies along it. The advisor scores candidate spots by
 the hull voxels their segments would carve, under a simple model: each hull voxel is occupied with
@@ -40,7 +40,9 @@ import torch
 from ..contract.errors import PlatolidarError, SettingsError
 from ..contract.spots import select_diverse_spots
 from .fields import GridBox
-from .init import configured_evidence_grid, in_view, marching_cells
+from .init import in_view
+from .segment_crossings import marching_cells
+from .voxel_evidence import configured_evidence_grid
 from .spot_geometry import back_facing_free, beyond_view_directions, degrees_beyond_view  # noqa: F401 (API)
 from .visible_surface_init import coarse_sensor_seen_free, dilate_cube, visible_surface
 
@@ -148,8 +150,8 @@ def voxel_classes(data, box: GridBox, opacity, level, fast: dict, meta: dict, of
     known = {f.name for f in dataclasses.fields(FastConfig)}
     cfg = FastConfig(**{k: v for k, v in fast.items() if k in known})
     # labelled as the fit's start field on its final grid (a coarse sensor's seen-free space included)
-    label, _ = configured_evidence_grid(data, box, cfg, offset_m,
-                                        seen_free=coarse_sensor_seen_free(data, box, cfg, meta))
+    seen = coarse_sensor_seen_free(data, box, cfg, meta)
+    label = configured_evidence_grid(data, box, cfg, offset_m, seen_free=seen)[0].label
     view = in_view(data, box, meta["camera_to_world"], meta["fov_rad"], meta["fov_axis"])
     occupied = torch.as_tensor(opacity >= level, device=label.device)
     cls = torch.full(box.shape, FREE, dtype=torch.int8, device=label.device)

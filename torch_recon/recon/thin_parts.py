@@ -1,5 +1,5 @@
 """Thin parts: world points of parts narrower than a pixel (a chair leg, a lamp pole) from each pixel's
-earliest significant two-bounce return, for the fast mode's start field (`init.evidence_grid`).
+earliest significant two-bounce return, for the fast mode's start field (`voxel_evidence.evidence_grid`).
 
 A pixel whose strongest return lies well behind its earliest one sees a part in front of the surface behind
 it; the part's voxels are occupied in the start field so that camera rays end there (session 8, issue 11;
@@ -134,7 +134,7 @@ def thin_part_cloud(data: RayData, voxel: float, edges: bool = True, centre: str
 
 def thin_part_voxels(data: RayData, box, edges: bool = True, centre: str = "off", points=None) -> torch.Tensor:
     """Voxels (nx, ny, nz) bool of `box` holding a `thin_part_points` point (`points`: `thin_part_cloud` when
-    already computed): the start field occupies them (`init.evidence_grid`, label NEAREST where no visible
+    already computed): the start field occupies them (`voxel_evidence.evidence_grid`, label NEAREST where no visible
     surface point lies) and `fast.thin_part_training` keeps training from eroding them."""
     return _voxels_of(box, thin_part_cloud(data, box.voxel, edges, centre) if points is None else points)
 

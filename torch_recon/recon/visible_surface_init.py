@@ -11,6 +11,7 @@ import torch
 
 from .data import RayData, pixel_angle
 from .fields import GridBox
+from .voxel_evidence import far_pixel_spacing
 
 
 def _depth_normals(x: np.ndarray, valid: np.ndarray, c: np.ndarray, max_jump: np.ndarray, tol: float,
@@ -207,8 +208,6 @@ def coarse_sensor_seen_free(data: RayData, box: GridBox, fc, meta: dict) -> torc
     """`seen_free` voxels when the sensor is coarse for `box` (neighbouring pixel rays farther apart at the far
     surfaces than `fc.carve_seen_free_beyond_voxels`: the camera carves between its rays too), else None.
     meta: camera_to_world, fov_rad, fov_axis. The fit's start field and the spot advisor both label this way."""
-    from .init import far_pixel_spacing         # init imports this module
-
     spacing = far_pixel_spacing(data)
     if spacing is None or spacing <= fc.carve_seen_free_beyond_voxels * box.voxel:
         return None

@@ -134,12 +134,12 @@ def test_the_start_reports_the_column_faces_towards_the_out_of_view_spots(tmp_pa
              & (c[..., 2] > -1.5) & (c[..., 2] < 0.3))
     assert not bool(beyond_view.in_camera_view(data, c[front]).any())
     cfg = FastConfig()
-    _, mesh_free = initial_grid(data, box, cfg, 0.1, view)
+    mesh_free = initial_grid(data, box, cfg, 0.1, view)[1]
     with_rule = float(mesh_free[front].float().mean())
     lit_side = beyond_view.lit_side_of_hull
     try:
         beyond_view.lit_side_of_hull = lambda data, box, hull, *a, **k: torch.zeros_like(hull)
-        _, without = initial_grid(data, box, cfg, 0.1, view)
+        without = initial_grid(data, box, cfg, 0.1, view)[1]
     finally:
         beyond_view.lit_side_of_hull = lit_side
     without = float(without[front].float().mean())

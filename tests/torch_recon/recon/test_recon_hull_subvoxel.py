@@ -49,10 +49,10 @@ def test_restored_blockers_and_ramps_are_not_hull():
     """(7, 3, 3) start field: hull x >= 3 (raw 4), free x < 3 (raw -10)."""
     start = torch.full((7, 3, 3), -10.0)
     start[3:] = 4.0
-    lit = torch.zeros(start.shape, dtype=torch.long)
+    lit = torch.zeros(start.shape, dtype=torch.bool)
     assert bool(hull_voxels(start, -10.0, 4.0, lit)[3].all())
     assert not bool(hull_voxels(start, -10.0, 4.0, lit)[4:].any())        # the boundary layer only
-    lit[3, 0] = 1                                           # a carved voxel put back (a lit segment crossed it)
+    lit[3, 0] = True                                        # a carved voxel put back (a lit segment crossed it)
     start[2, 2] = 1.0                                       # a measured surface's ramp next to the hull
     hull = hull_voxels(start, -10.0, 4.0, lit)
     assert not bool(hull[3, 0].any()) and not bool(hull[3, 2].any()) and bool(hull[3, 1].all())
@@ -94,3 +94,44 @@ def test_fast_model_moves_only_the_hidden_hull_and_only_when_asked():
     assert not movable[tuple(idx[inside].T.numpy())].any()      # no voxel holding a measured surface point
     from torch_recon.recon.hull_subvoxel import _next_to, camera_free
     assert not (movable & _next_to(camera_free(model, model.grid.box)).numpy()).any()     # no silhouette face
+
+
+def test_the_export_reads_the_start_fields_lit_crossings_back_and_marches_no_lit_segment(monkeypatch):
+    """Session 14 (issue 11): the start field's `VoxelEvidence` carries the voxels lit segments cross, the same as
+    the lit march the export used to repeat (session 13's `shrinkable_hull`), and the hull's placement at export
+    marches only the camera rays (its silhouettes) and the shadowed segments (their grazes), no lit segment."""
+    import torch_recon.recon.hull_trim as hull_trim
+    import torch_recon.recon.segment_crossings as crossings
+    from tests.support.recon_fixtures import box_floor_measurements
+    from tests.torch_recon.recon.test_recon_fit import small_config
+    from tests.torch_recon.recon.test_recon_freeze import _meta
+    from torch_recon.recon.data import build_ray_data, lit_path_tolerance, unexplained_lit
+    from torch_recon.recon.models import FastModel
+    from torch_recon.recon.voxel_evidence import carving_pixel_mask
+
+    meas = box_floor_measurements(32)
+    data = build_ray_data(meas)
+    model = FastModel(data, small_config(steps=1), _meta(meas))
+    fc, box = model.fc, model.grid.box
+    step, off = fc.step_voxels * box.voxel, max(model.offset, fc.surface_margin_voxels * box.voxel)
+    on_sub = carving_pixel_mask(data, box, fc.carve_spacing_voxels)[data.pair_pixel]
+    tol = lit_path_tolerance(data, box.voxel, fc.lit_path_tolerance_voxels)
+    lit = crossings.segment_counts(data, box, data.lit & on_sub, off, step, fc.carve_core,
+                                   unexplained_lit(data, tol) if tol > 0 else None).reshape(box.shape)
+    assert lit.any() and torch.equal(model.evidence.lit_crossed, lit > 0)
+    assert torch.equal(model.start_evidence().restored, model.evidence.label == 4)
+
+    marched = []
+    real = crossings.marching_cells
+
+    def counted(box, origins, *args, **kwargs):
+        marched.append(origins.shape[0])
+        return real(box, origins, *args, **kwargs)
+
+    for module in (crossings, hull_trim):
+        monkeypatch.setattr(module, "marching_cells", counted)
+    vol, level = model.surface_volume()
+    movable, _, _ = model.mesh_inward(vol, level)
+    cameras = int(torch.isfinite(data.visible_depth).sum())
+    shadowed = crossings.pair_segments(data, data.shadowed & on_sub, off)[0].shape[0]
+    assert movable.any() and sorted(marched) == sorted([cameras, shadowed]), (marched, cameras, shadowed)

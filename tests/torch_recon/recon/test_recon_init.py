@@ -8,7 +8,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from torch_recon.recon.fields import GridBox  # noqa: E402
-from torch_recon.recon.init import RESTORED, explain_shadows  # noqa: E402
+from torch_recon.recon.voxel_evidence import RESTORED, explain_shadows  # noqa: E402
 from torch_recon.recon.visible_surface_init import _depth_normals  # noqa: E402
 
 
@@ -70,7 +70,8 @@ def test_space_the_sensor_saw_through_beside_an_objects_edge_starts_empty():
     from tests.support.recon_fixtures import BOX_HI, BOX_LO, box_floor_measurements
     from tests.torch_recon.recon.test_recon_fit import small_config
     from torch_recon.recon.data import build_ray_data
-    from torch_recon.recon.init import evidence_grid, grid_bbox, in_view, initial_grid
+    from torch_recon.recon.init import grid_bbox, in_view, initial_grid
+    from torch_recon.recon.voxel_evidence import evidence_grid
     from torch_recon.recon.visible_surface_init import surface_offset
 
     meas = box_floor_measurements(32)
@@ -78,10 +79,10 @@ def test_space_the_sensor_saw_through_beside_an_objects_edge_starts_empty():
     cfg = small_config(steps=0).fast
     box = GridBox(*grid_bbox(data, cfg.resolution, cfg.bbox_margin_voxels), cfg.resolution)
     view = in_view(data, box, np.asarray(meas.camera_to_world), meas.fov_rad, meas.fov_axis)
-    label, _ = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, 0.0, cfg.step_voxels,
-                             cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
-                             explain_shadow_rays=cfg.explain_shadows, explain_camera_free=cfg.explain_camera_free,
-                             nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface)
+    label = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, 0.0, cfg.step_voxels,
+                          cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
+                          explain_shadow_rays=cfg.explain_shadows, explain_camera_free=cfg.explain_camera_free,
+                          nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface)[0].label
     raw = initial_grid(data, box, cfg, 0.0, view)[0].raw_xyz().detach()
     centres = box.centres()
     beside = ((centres[..., 0].abs() > BOX_HI[0]) & (centres[..., 1] > BOX_LO[1]) & (centres[..., 1] < BOX_HI[1])

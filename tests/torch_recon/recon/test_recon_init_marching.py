@@ -1,4 +1,4 @@
-"""The carving's sample marching (recon/init.py) counts exactly what one globally padded march counts.
+"""The carving's sample marching (recon/segment_crossings.py) counts exactly what one globally padded march counts.
 
 The fast start's voxel counts drive the labels and the shadow-explanation score, so the faster marching
 (segments longest first, per-chunk padding, one axis at a time) must give the same integers.
@@ -12,7 +12,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from torch_recon.recon.fields import GridBox  # noqa: E402
-from torch_recon.recon.init import accumulate_crossings, marching_cells  # noqa: E402
+from torch_recon.recon.segment_crossings import accumulate_crossings, marching_cells  # noqa: E402
 from torch_recon.recon.visible_surface_init import dilate_cube  # noqa: E402
 from torch_recon.recon.sampler import marching_intervals  # noqa: E402
 

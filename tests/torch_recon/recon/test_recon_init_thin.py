@@ -1,5 +1,5 @@
 """A post thinner than a pixel, seen past by the sensor and grazed by lit rays, survives the fast start
-because the shadows it casts from several spots cross it (recon/init.py `explain_shadows`)."""
+because the shadows it casts from several spots cross it (recon/voxel_evidence.py `explain_shadows`)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from tests.support.recon_fixtures import POST_SENSOR, wall_pixel_rays  # noqa: E
 from torch_recon.recon.data import RayData  # noqa: E402
 from torch_recon.recon.fields import GridBox  # noqa: E402
 from torch_recon.recon.hull_trim import unneeded_hull  # noqa: E402
-from torch_recon.recon.init import NEAREST, RESTORED, evidence_grid  # noqa: E402
+from torch_recon.recon.voxel_evidence import NEAREST, RESTORED, evidence_grid  # noqa: E402
 from torch_recon.recon.visible_surface_init import dilate_cube  # noqa: E402
 
 POST_XY, POST_R, POST_TOP = np.array([0.55, 0.45]), 0.02, 0.6
@@ -56,8 +56,8 @@ def test_a_post_thinner_than_a_pixel_survives_the_start(score="ratio"):
     data = _post_scene()
     assert int(data.shadowed.sum()) > 30
     box = GridBox([-0.05, -0.05, -0.05], [1.05, 1.05, 1.05], 22)     # 5 cm voxels: the post is 4 cm wide
-    label, _ = evidence_grid(data, box, carve_spacing_voxels=0.5, explain_shadow_rays=True,
-                             explain_camera_free=True, explain_score=score)
+    label = evidence_grid(data, box, carve_spacing_voxels=0.5, explain_shadow_rays=True,
+                          explain_camera_free=True, explain_score=score)[0].label
     centres = box.centres()
     near_post = torch.linalg.vector_norm(centres[..., :2] - torch.tensor(POST_XY, dtype=torch.float32), dim=-1)
     z = centres[..., 2]
@@ -92,8 +92,9 @@ def test_hull_no_shadow_needs_is_trimmed_the_post_stays():
     crosses, stays, and so does the floor's visible-surface band."""
     data = _post_scene()
     box = GridBox([-0.05, -0.05, -0.05], [1.05, 1.05, 1.05], 22)
-    label, shadow = evidence_grid(data, box, carve_spacing_voxels=0.5, count_shadow=True, explain_shadow_rays=True,
-                                  explain_camera_free=True)
+    evidence, shadow = evidence_grid(data, box, carve_spacing_voxels=0.5, count_shadow=True, explain_shadow_rays=True,
+                                     explain_camera_free=True)
+    label = evidence.label
     free = (label == 2) | (label == 3)
     band = dilate_cube((label == 1).float(), 1) > 0
     trimmed = unneeded_hull(free, label == 0, shadow, band, 8)
@@ -162,14 +163,14 @@ def test_a_post_narrower_than_a_pixel_in_front_of_a_wall_is_kept_by_the_earliest
     off_axis = torch.linalg.vector_norm(centres[..., :2] - torch.tensor(WALL_POST_XY, dtype=torch.float32), dim=-1)
     z = centres[..., 2]
     column = (off_axis < box.voxel) & (z > 0.1) & (z < WALL_POST_TOP - 0.1)
-    plain, _ = evidence_grid(data, box)
-    with_nearest, _ = evidence_grid(data, box, nearest_free=True, nearest_surface=True)
+    plain = evidence_grid(data, box)[0].label
+    with_nearest = evidence_grid(data, box, nearest_free=True, nearest_surface=True)[0].label
     kept_plain, n = _heights_kept(plain, column)
     kept, _ = _heights_kept(with_nearest, column)
     assert n >= 15 and kept_plain <= 2 and kept == n, (kept_plain, kept, n)
     assert int(((with_nearest == NEAREST) & (off_axis > 1.5 * box.voxel)).sum()) == 0
     # camera free space alone (no occupied nearest surface): the sensor no longer carves the post, lit rays do
-    free_only, _ = evidence_grid(data, box, nearest_free=True)
+    free_only = evidence_grid(data, box, nearest_free=True)[0].label
     zs = torch.arange(0.1, WALL_POST_TOP - 0.1, 0.5 * box.voxel)
     axis = torch.stack([torch.full_like(zs, WALL_POST_XY[0]), torch.full_like(zs, WALL_POST_XY[1]), zs], 1)
     i = box.cell_index(axis)[0]
@@ -203,8 +204,8 @@ def test_the_silhouette_of_a_part_the_sensor_sees_is_not_fattened():
     box = GridBox([-0.05, -1.05, -0.05], [1.05, 1.05, 1.05], 64)
     x = box.centres()[..., 0]
     beside = (x - 0.5).abs() > 0.1 + 0.5 * box.voxel           # centre outside the board's extent
-    edges, _ = evidence_grid(data, box, nearest_free=True, nearest_surface=True, thin_part_edges=True)
-    plain, _ = evidence_grid(data, box, nearest_free=True, nearest_surface=True, thin_part_edges=False)
+    edges = evidence_grid(data, box, nearest_free=True, nearest_surface=True, thin_part_edges=True)[0].label
+    plain = evidence_grid(data, box, nearest_free=True, nearest_surface=True, thin_part_edges=False)[0].label
     assert n_edge > 20 and int(((edges == NEAREST) & beside).sum()) > 10
     assert int((plain == NEAREST).sum()) == 0
     post = _post_before_a_wall()
@@ -213,7 +214,7 @@ def test_the_silhouette_of_a_part_the_sensor_sees_is_not_fattened():
     off_axis = torch.linalg.vector_norm(box.centres()[..., :2] - torch.tensor(WALL_POST_XY, dtype=torch.float32), -1)
     column = (off_axis < box.voxel) & (z > 0.1) & (z < WALL_POST_TOP - 0.1)
     kept, n = _heights_kept(evidence_grid(post, box, nearest_free=True, nearest_surface=True,
-                                          thin_part_edges=False, thin_part_centre="mean")[0], column)
+                                          thin_part_edges=False, thin_part_centre="mean")[0].label, column)
     assert kept == n >= 15, (kept, n)
 
 

@@ -1,6 +1,6 @@
 """A lit pair whose path disagrees with its pixel's visible point got its light from another surface in the
 pixel (a depth edge): it carves from where its own path puts the surface, and training leaves it out
-(recon/data.py `unexplained_lit`, recon/init.py `pair_segments`, `fast.lit_path_tolerance_voxels`)."""
+(recon/data.py `unexplained_lit`, recon/segment_crossings.py `pair_segments`, `fast.lit_path_tolerance_voxels`)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ from torch_recon.contract.errors import SettingsError  # noqa: E402
 from torch_recon.recon.config import FitConfig, override  # noqa: E402
 from torch_recon.recon.data import RayData, lit_path_tolerance, unexplained_lit, without_lit  # noqa: E402
 from torch_recon.recon.fields import GridBox  # noqa: E402
-from torch_recon.recon.init import pair_segments, evidence_grid  # noqa: E402
+from torch_recon.recon.segment_crossings import pair_segments  # noqa: E402
+from torch_recon.recon.voxel_evidence import evidence_grid  # noqa: E402
 
 C = np.array([0.5, 0.5, 2.0])
 TOP = np.array([0.5, 0.5, 0.6])     # what the pixel's depth sees: a block's top edge
@@ -53,8 +54,8 @@ def test_it_no_longer_carves_the_block_under_the_top():
     box = GridBox([0.0, 0.0, 0.0], [1.2, 1.2, 2.2], 44)      # 5 cm voxels
     under_top = box.cell_index(torch.tensor([[0.8, 0.5, 0.545]]))[0][0].tolist()   # on the segment top -> L_BELOW
     above_floor = box.cell_index(torch.tensor([[0.8, 0.5, 0.3]]))[0][0].tolist()   # on the segment floor -> L_BELOW
-    old, _ = evidence_grid(data, box)
-    new, _ = evidence_grid(data, box, lit_path_tolerance_m=0.05)
+    old = evidence_grid(data, box)[0].label
+    new = evidence_grid(data, box, lit_path_tolerance_m=0.05)[0].label
     assert old[tuple(under_top)] == 3 and new[tuple(under_top)] != 3
     assert new[tuple(above_floor)] == 3
 

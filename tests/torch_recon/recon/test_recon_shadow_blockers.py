@@ -10,7 +10,7 @@ torch = pytest.importorskip("torch")
 from torch_recon.contract.errors import SettingsError  # noqa: E402
 from torch_recon.recon.config import FitConfig  # noqa: E402
 from torch_recon.recon.fields import GridBox  # noqa: E402
-from torch_recon.recon.init import RESTORED, explain_shadows  # noqa: E402
+from torch_recon.recon.voxel_evidence import RESTORED, explain_shadows  # noqa: E402
 from torch_recon.recon.shadow_blockers import blocker_weight, occupied_neighbours  # noqa: E402
 
 
@@ -72,7 +72,8 @@ def test_mesh_islands_touching_a_restored_blocker_survive_the_cleanup():
     v[5, 30, 20] = 1.0                                    # a speck: a lone restored voxel
     restored = torch.zeros(box.shape, dtype=torch.bool)
     restored[20, 20, 8:14] = restored[20, 20, 15:30] = restored[5, 30, 20] = True
-    model = SimpleNamespace(thin_parts=None, grid=SimpleNamespace(box=box), restored_blockers=lambda: restored,
+    model = SimpleNamespace(thin_parts=None, grid=SimpleNamespace(box=box),
+                            start_evidence=lambda: SimpleNamespace(restored=restored),
                             fc=SimpleNamespace(mesh_keep_restored_voxels=3))
     lo, hi = voxel_centre_box(v, box.bbox_min.numpy(), box.bbox_max.numpy())
     leg = lambda m: int(((np.abs(m.vertices[:, :2] - 20.5) < 1.0).all(1) & (m.vertices[:, 2] > 7)).sum())  # noqa: E731
@@ -86,8 +87,8 @@ def test_mesh_islands_touching_a_restored_blocker_survive_the_cleanup():
 
 
 def test_the_model_keeps_the_start_fields_restored_blockers_without_labelling_again(monkeypatch):
-    """`FastModel.restored_blockers` is the start field's label 4, from the one evidence labelling it was built
-    with (not a second `evidence_grid` run at export)."""
+    """`FastModel.start_evidence().restored` is the start field's label 4, from the one evidence labelling it was
+    built with (not a second `evidence_grid` run at export)."""
     import torch_recon.recon.init as init
     from tests.torch_recon.recon.test_recon_thin_training import _meta, _wall_post_data
     from tests.torch_recon.recon.test_recon_fit import small_config
@@ -98,7 +99,7 @@ def test_the_model_keeps_the_start_fields_restored_blockers_without_labelling_ag
 
     def counted(*args, **kwargs):
         out = original(*args, **kwargs)
-        labels.append(out[0].clone())
+        labels.append(out[0].label.clone())
         return out
 
     monkeypatch.setattr(init, "configured_evidence_grid", counted)
@@ -106,7 +107,7 @@ def test_the_model_keeps_the_start_fields_restored_blockers_without_labelling_ag
     cfg.fast.resolution = 32
     model = FastModel(_wall_post_data(), cfg, _meta())
     assert len(labels) == 1
-    restored = model.restored_blockers()
+    restored = model.start_evidence().restored
     assert len(labels) == 1 and torch.equal(restored, labels[0] == RESTORED)
 
 

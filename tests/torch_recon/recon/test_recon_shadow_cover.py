@@ -10,7 +10,7 @@ torch = pytest.importorskip("torch")
 from torch_recon.contract.errors import SettingsError  # noqa: E402
 from torch_recon.recon.config import FitConfig  # noqa: E402
 from torch_recon.recon.fields import GridBox  # noqa: E402
-from torch_recon.recon.init import RESTORED, explain_shadows  # noqa: E402
+from torch_recon.recon.voxel_evidence import RESTORED, explain_shadows  # noqa: E402
 from torch_recon.recon.shadow_cover import greedy_cover  # noqa: E402
 
 

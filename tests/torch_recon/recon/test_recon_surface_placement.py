@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from torch_recon.recon.models import binary_boundary_inset
+from torch_recon.recon.hull_subvoxel import binary_boundary_inset
 
 LEVEL, HALF = 0.94, 3.06
 

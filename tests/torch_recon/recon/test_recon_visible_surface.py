@@ -99,7 +99,7 @@ def test_fast_model_box_is_grid_bbox_and_its_visible_surface_is_computed_once(mo
     assert calls == [box.voxel]
     monkeypatch.undo()
     # the same free space and start field as without the shared surface
-    start, mesh_free = initial_grid(data, box, cfg.fast, model.offset, model._view(box))
+    start, mesh_free, _ = initial_grid(data, box, cfg.fast, model.offset, model._view(box))
     assert torch.equal(start.raw, model.grid.raw.detach()) and torch.equal(mesh_free, model.free)
     vol, iso = model.surface_volume()
     front = in_front_of_visible_surface(real(data, box), box, torch.from_numpy(vol < iso))

@@ -67,6 +67,9 @@ class Dataset:
     def __init__(self, root: str | os.PathLike):
         self.root = Path(root)
         mpath = self.root / MANIFEST_NAME
+        if self.root.is_file():     # e.g. the dataset's own dataset.json
+            raise DatasetError(str(self.root), "", f"expected a dataset directory, got a file (the folder holding "
+                                                   f"it is {self.root.parent})")
         if not self.root.is_dir():
             raise DatasetError(str(self.root), "", "dataset directory does not exist")
         if not mpath.is_file():

@@ -80,6 +80,12 @@ def test_missing_directory(tmp_path):
     _refused(tmp_path / "nope", "nope", "")
 
 
+def test_manifest_file_instead_of_its_directory(synthetic_dataset):
+    root, _, _ = synthetic_dataset
+    err = _refused(root / "dataset.json", "dataset.json", "")
+    assert "expected a dataset directory, got a file" in str(err) and str(root) in str(err)
+
+
 def test_missing_transient_file(synthetic_dataset):
     root, _, _ = synthetic_dataset
     (root / "transients" / "spot_0001.exr").unlink()
