@@ -1,4 +1,4 @@
-"""The fewest carved voxels that block every unexplained shadowed segment (`init.explain_shadows`, `fast.explain_pick`
+"""The fewest carved voxels that block every unexplained shadowed segment (`voxel_evidence.explain_shadows`, `fast.explain_pick`
 'cover').
 
 Per segment, the carved voxel with the most shadowed and fewest lit crossings (shadow / (lit + 1)) puts a blocker

@@ -1,6 +1,6 @@
 """One-voxel sheets in the mesh field: a wall thinner than a voxel, placed inside its voxel (`fast.mesh_sheet_inset_voxels`).
 
-A 1 cm lamp-shade wall that the shadows put back (restored blockers, `init.explain_shadows`) or that no lit ray
+A 1 cm lamp-shade wall that the shadows put back (restored blockers, `voxel_evidence.explain_shadows`) or that no lit ray
 crossed is a sheet of whole 3.2 cm voxels, free on both sides across it. Marching cubes puts its two faces half a
 voxel either side of the voxel centre, and the wall lies anywhere inside: one face is up to 2.7 cm from it (session
 14: 2-3 cm samples are 13.5 % of the lamp's, more than its lumps beyond 5 cm). Lowering the sheet's voxels so that
