@@ -72,7 +72,8 @@ class AdviceSettings:
     refine_voxels: float = 0.0        # then move each chosen spot to the best sensor-visible point within this many
                                       # voxels, given the other spots (recon/spot_refine.py; 0: off). Opt-in: at 4 it
                                       # raises the expected coverage 2-14 %, but 8 + 8 two-pass thin-structures lost
-                                      # (hidden R 0.789 -> 0.736), organic-occluded +0.011 / -0.012 at seeds 0 / 1; session 14
+                                      # (hidden R 0.789 -> 0.736), organic-occluded +0.011 / -0.012 at seeds 0 / 1
+                                      # (docs/reconstruction.md, session 14)
     seed: int = 0                     # candidate choice (select_diverse_spots)
     device: str = "cpu"               # torch device
     threads: int | None = None        # CPU threads for torch
