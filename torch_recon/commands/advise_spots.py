@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-ADVISE_FLAGS = ("add", "candidates", "occupied_prior", "beyond_view_deg", "pixel_stride", "back_faces", "seed",
-                "device", "threads")
+ADVISE_FLAGS = ("add", "candidates", "occupied_prior", "beyond_view_deg", "pixel_stride", "back_faces", "refine_voxels",
+                "seed", "device", "threads")
 
 
 def register(sub) -> None:

@@ -43,7 +43,9 @@ from .fields import GridBox
 from .init import in_view
 from .segment_crossings import marching_cells
 from .voxel_evidence import configured_evidence_grid
-from .spot_geometry import back_facing_free, beyond_view_directions, degrees_beyond_view  # noqa: F401 (API)
+from .spot_refine import covered_total, refine_spots
+from .spot_geometry import (PATH_MARGIN_M, _longest_lit_path, _path_range_end, back_facing_free,  # noqa: F401 (API)
+                            beyond_view_directions, degrees_beyond_view)
 from .visible_surface_init import coarse_sensor_seen_free, dilate_cube, visible_surface
 
 #: voxel classes along a segment (FACE: a hidden back face next to a measured surface, see voxel_classes)
@@ -67,6 +69,11 @@ class AdviceSettings:
                                       # lifts thin-structures (hidden R 0.690 -> 0.726 at 300 candidates, 0.789 at
                                       # 1000) but not organic-occluded (0.898 -> 0.893 / 0.875) nor dark-room
                                       # (0.828 -> 0.786 / 0.804); docs/reconstruction.md, session 13
+    refine_voxels: float = 0.0        # then move each chosen spot to the best sensor-visible point within this many
+                                      # voxels, given the other spots (recon/spot_refine.py; 0: off). Opt-in: at 4 it
+                                      # raises the expected coverage 2-14 %, but 8 + 8 two-pass thin-structures lost
+                                      # (hidden R 0.789 -> 0.736), organic-occluded +0.011 / -0.012 at seeds 0 / 1
+                                      # (docs/reconstruction.md, session 14)
     seed: int = 0                     # candidate choice (select_diverse_spots)
     device: str = "cpu"               # torch device
     threads: int | None = None        # CPU threads for torch
@@ -74,7 +81,8 @@ class AdviceSettings:
     SETTINGS_META = {"add": {"range": (1, None)}, "candidates": {"range": (1, None)},
                      "occupied_prior": {"range": (0.0, 1.0)}, "beyond_view_deg": {"range": (0.0, 60.0),
                                                                                    "unit": "deg"},
-                     "pixel_stride": {"range": (1, None)}, "threads": {"range": (1, None)}}
+                     "pixel_stride": {"range": (1, None)},
+                     "refine_voxels": {"range": (0.0, 20.0), "unit": "voxels"}, "threads": {"range": (1, None)}}
 
     def validate(self):
         if not 0.0 < self.occupied_prior < 1.0:
@@ -95,6 +103,7 @@ class Advice:
     existing: np.ndarray              # (S, 3) the capture's spot points
     hull_voxels: int                  # unbounded hull voxels of the fit (in the measured space, still occupied)
     reached_by_existing: int          # of those, reached by an existing spot's segment
+    covered: float                    # expected hull voxels the existing and advised spots cover (the objective)
     voxel_m: float
     notes: list = field(default_factory=list)
     details: dict = field(default_factory=dict, repr=False)   # the grid's arrays, for diagnostics
@@ -111,6 +120,7 @@ class Advice:
                             for s in self.spots],
                 "existing": [[round(float(v), 4) for v in p] for p in self.existing],
                 "hull_voxels": self.hull_voxels, "hull_voxels_reached_by_existing": self.reached_by_existing,
+                "expected_voxels_covered": round(self.covered, 1),
                 "voxel_m": self.voxel_m, "spot_list": self.spot_list(),
                 "spot_list_with_existing": self.spot_list(True), "notes": self.notes}
 
@@ -251,33 +261,6 @@ def _nearest(points, queries, chunk: int = 256):
     return torch.cat(ds), torch.cat(ids)
 
 
-#: two-bounce paths must end this far before the sensor's last bin (the pulse's width and the sub-pixel spread)
-PATH_MARGIN_M = 0.25
-
-
-def _path_range_end(dataset):
-    """The optical path (m) at the end of the dataset's last time bin; None without a dataset directory."""
-    if dataset is None or not Path(dataset).is_dir():
-        return None
-    from ..contract.dataset import load_dataset
-
-    sensor = load_dataset(dataset).manifest.sensor
-    return float(sensor.start_m + sensor.bins * sensor.bin_width_m)
-
-
-def _longest_lit_path(spots, spot_nrm, xs, ns, data):
-    """Per spot (N, 3), the longest two-bounce path |l - o| + |x - l| + |c - x| over the visible points x that
-    face it and that it faces (what the sensor must record)."""
-    to_cam = torch.linalg.vector_norm(xs - data.sensor_origin, dim=1)
-    out = []
-    for l, n in zip(spots, spot_nrm):
-        v = l - xs
-        facing = ((v * ns).sum(1) > 0) & ((v * n).sum(1) <= 0)
-        path = torch.linalg.vector_norm(l - data.laser_origin) + torch.linalg.vector_norm(v, dim=1) + to_cam
-        out.append(path[facing].max() if bool(facing.any()) else path.new_tensor(0.0))
-    return torch.stack(out)
-
-
 def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measurements=None) -> Advice:
     """Advise `settings.add` laser spots for `dataset` from its fast fit in `fit_dir` (see the module doc).
     measurements: the dataset's `Measurements` when already preprocessed (else preprocessed here)."""
@@ -334,15 +317,26 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
         covered = torch.maximum(covered, values_of(spot, normal))
 
     # candidates: spread-out visible points the laser reaches (+ laser directions beyond the view)
+    end_m = _path_range_end(dataset) if measurements is None else None
+
+    def laser_reaches(p):       # the laser's ray gets to the points p (N, 3) (always when it starts at the sensor)
+        if float(torch.linalg.vector_norm(data.laser_origin - data.sensor_origin)) <= 1e-6:
+            return torch.ones(len(p), dtype=torch.bool, device=dev)
+        return _laser_reaches(box, cls, data.laser_origin, p, off, step)
+
+    def in_range(p, n):         # the sensor records every two-bounce return of spots p with normals n
+        if end_m is None:
+            return torch.ones(len(p), dtype=torch.bool, device=dev)
+        return _longest_lit_path(p, n, pts_all, nrm_all, data) < end_m - PATH_MARGIN_M
+
     rng = np.random.default_rng(s.seed)
-    cand_pts, cand_pix = [], []
+    cand_pts, cand_src = [], []     # cand_src: the candidate's index into pts_all (None: beyond the view)
     pick = select_diverse_spots(pts_all.cpu().numpy(), nrm_all.cpu().numpy(), s.candidates, rng)
     p_in = pts_all[torch.as_tensor(pick, device=dev)]
-    if float(torch.linalg.vector_norm(data.laser_origin - data.sensor_origin)) > 1e-6:
-        reach = _laser_reaches(box, cls, data.laser_origin, p_in, off, step)
-        p_in, pick = p_in[reach], pick[reach.cpu().numpy()]
+    reach = laser_reaches(p_in)
+    p_in, pick = p_in[reach], pick[reach.cpu().numpy()]
     cand_pts.append(p_in)
-    cand_pix += [(int(pix[i, 1]), int(pix[i, 0])) for i in pick]
+    cand_src += [int(i) for i in pick]
     beyond = s.beyond_view_deg
     if beyond is None:          # the laser is known to reach as far as the capture's own spots
         beyond = min(degrees_beyond_view(sensor, data.spot_points.cpu().numpy()), 60.0)
@@ -355,19 +349,17 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
         if len(land):
             keep = select_diverse_spots(land.cpu().numpy(), None, max(1, s.candidates // 2), rng)
             cand_pts.append(land[torch.as_tensor(keep, device=dev)])
-            cand_pix += [None] * len(keep)
+            cand_src += [None] * len(keep)
         else:
             notes.append(f"no laser direction within {beyond:.0f} deg beyond the view lands on the fit's surface")
     cand = torch.cat(cand_pts)
     cand_nrm = spot_normals(box, opacity, cand, pts_all, nrm_all)
-    end_m = _path_range_end(dataset) if measurements is None else None
-    if end_m is not None:       # the sensor must record every two-bounce return the spot causes
-        fits = _longest_lit_path(cand, cand_nrm, pts_all, nrm_all, data) < end_m - PATH_MARGIN_M
-        if not bool(fits.all()):
-            notes.append(f"{int((~fits).sum())} candidate(s) left out: their two-bounce paths would run past the "
-                         f"sensor's last bin ({end_m:.2f} m)")
-        cand, cand_nrm = cand[fits], cand_nrm[fits]
-        cand_pix = [p for p, ok in zip(cand_pix, fits.tolist()) if ok]
+    fits = in_range(cand, cand_nrm)
+    if not bool(fits.all()):
+        notes.append(f"{int((~fits).sum())} candidate(s) left out: their two-bounce paths would run past the "
+                     f"sensor's last bin ({end_m:.2f} m)")
+    cand, cand_nrm = cand[fits], cand_nrm[fits]
+    cand_src = [p for p, ok in zip(cand_src, fits.tolist()) if ok]
     if len(cand) == 0:
         raise PlatolidarError(f"{dataset}: no candidate spot: no visible surface point the laser reaches")
     cand_values = torch.stack([values_of(p, n) for p, n in zip(cand, cand_nrm)])     # (C, n_hull)
@@ -375,7 +367,7 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
     by_existing = int((covered > 0).sum())
     details = {"box": box, "hull_flat": hull_flat, "candidates": cand, "candidate_values": cand_values,
                "existing_values": covered.clone()}
-    chosen, spots = [], []
+    chosen = []
     for _ in range(min(s.add, len(cand))):
         gain = (cand_values - covered).clamp(min=0).sum(1)
         if chosen:
@@ -388,7 +380,29 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
             break
         chosen.append(j)
         covered = torch.maximum(covered, cand_values[j])
-        spots.append(AdvisedSpot(point=cand[j].cpu().double().numpy(), pixel=cand_pix[j],
-                                 voxels=int((cand_values[j] > 0).sum()), gain=float(gain[j])))
+    points, values = [cand[j] for j in chosen], [cand_values[j] for j in chosen]
+    details.update(covered_greedy=float(covered.sum()), greedy=chosen)
+    if s.refine_voxels > 0 and chosen:
+        def usable(ids):
+            return laser_reaches(pts_all[ids]) & in_range(pts_all[ids], nrm_all[ids])
+
+        def values_at(ids):
+            return torch.stack([values_of(pts_all[k], nrm_all[k]) for k in ids.tolist()])
+
+        src, values, moved = refine_spots([cand_src[j] for j in chosen], values, details["existing_values"],
+                                          pts_all, usable, values_at, s.refine_voxels * box.voxel, rng)
+        points = [cand[j] if k is None else pts_all[k] for j, k in zip(chosen, src)]
+        notes.append(f"refined within {s.refine_voxels:g} voxels: {moved} of {len(chosen)} spot(s) moved, expected "
+                     f"hull voxels covered {details['covered_greedy']:.0f} -> "
+                     f"{covered_total(details['existing_values'], values):.0f}")
+    else:
+        src = [cand_src[j] for j in chosen]
+    spots, cov = [], details["existing_values"]
+    for p, k, v in zip(points, src, values):    # gains in choice order, after any refinement
+        spots.append(AdvisedSpot(point=p.cpu().double().numpy(), pixel=None if k is None else
+                                 (int(pix[k, 1]), int(pix[k, 0])), voxels=int((v > 0).sum()),
+                                 gain=float((v - cov).clamp(min=0).sum())))
+        cov = torch.maximum(cov, v)
     return Advice(spots=spots, existing=data.spot_points.cpu().double().numpy(), hull_voxels=n_hull,
-                  reached_by_existing=by_existing, voxel_m=box.voxel, notes=notes, details=details)
+                  reached_by_existing=by_existing, covered=float(cov.sum()), voxel_m=box.voxel, notes=notes,
+                  details=details)

@@ -1,9 +1,11 @@
 """Geometry of the spot advisor (recon/spot_advice.py): which side of the fit's voxels faces away from the
-sensor (the back faces only grazing light places), and laser directions beyond the sensor's image."""
+sensor (the back faces only grazing light places), laser directions beyond the sensor's image, and the
+two-bounce paths a spot causes (which the sensor must record)."""
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -70,3 +72,30 @@ def degrees_beyond_view(sensor, points) -> float:
     over_x = np.arctan(np.abs(col[front] - 0.5 * sensor.width) / f) - math.atan(0.5 * sensor.width / f)
     over_y = np.arctan(np.abs(row[front] - 0.5 * sensor.height) / f) - math.atan(0.5 * sensor.height / f)
     return float(np.degrees(max(0.0, over_x.max(), over_y.max())))
+
+
+#: two-bounce paths must end this far before the sensor's last bin (the pulse's width and the sub-pixel spread)
+PATH_MARGIN_M = 0.25
+
+
+def _path_range_end(dataset):
+    """The optical path (m) at the end of the dataset's last time bin; None without a dataset directory."""
+    if dataset is None or not Path(dataset).is_dir():
+        return None
+    from ..contract.dataset import load_dataset
+
+    sensor = load_dataset(dataset).manifest.sensor
+    return float(sensor.start_m + sensor.bins * sensor.bin_width_m)
+
+
+def _longest_lit_path(spots, spot_nrm, xs, ns, data):
+    """Per spot (N, 3), the longest two-bounce path |l - o| + |x - l| + |c - x| over the visible points x that
+    face it and that it faces (what the sensor must record)."""
+    to_cam = torch.linalg.vector_norm(xs - data.sensor_origin, dim=1)
+    out = []
+    for l, n in zip(spots, spot_nrm):
+        v = l - xs
+        facing = ((v * ns).sum(1) > 0) & ((v * n).sum(1) <= 0)
+        path = torch.linalg.vector_norm(l - data.laser_origin) + torch.linalg.vector_norm(v, dim=1) + to_cam
+        out.append(path[facing].max() if bool(facing.any()) else path.new_tensor(0.0))
+    return torch.stack(out)
