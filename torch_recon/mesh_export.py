@@ -116,10 +116,14 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
         trimesh.smoothing.filter_taubin(mesh, lamb=0.5, nu=0.53, iterations=int(smooth_iterations),
                                         laplacian_operator=lap)
     if inward is not None and len(mesh.faces):
-        movable, max_move, iterations = inward
+        movable, max_move, iterations = inward[:3]
         inside = mesh.vertices - 0.5 * spacing * mesh.vertex_normals
         g = np.clip(np.rint((inside - lo) / spacing).astype(np.int64), 0, np.array(np.shape(volume)) - 1)
-        inward_smoothing(mesh, np.asarray(movable, bool)[g[:, 0], g[:, 1], g[:, 2]], float(max_move), int(iterations))
+        mov = np.asarray(movable, bool)[g[:, 0], g[:, 1], g[:, 2]]
+        flat = None
+        if len(inward) > 3:     # (flat patch voxels, offset m): those vertices first move inward along the normal
+            flat = (mov & np.asarray(inward[3], bool)[g[:, 0], g[:, 1], g[:, 2]], float(inward[4]))
+        inward_smoothing(mesh, mov, float(max_move), int(iterations), flat=flat)
     removed = 0
     if min_island_fraction > 0 and len(mesh.faces):
         # islands = faces connected through shared edges (as mesh.split), labelled in one pass: split builds a
@@ -143,15 +147,22 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
     return _without_degenerate(mesh), removed
 
 
-def inward_smoothing(mesh, movable, max_move: float, iterations: int, lamb: float = 0.5):
+def inward_smoothing(mesh, movable, max_move: float, iterations: int, lamb: float = 0.5, flat=None):
     """Umbrella-Laplacian steps (lamb each) on the `movable` vertices (bool (V,)) with every outward component
     (along the vertex normal) removed and the total displacement clamped to `max_move` (m), in place: a
     staircase's convex steps are cut (a visual hull over-estimates its object), its flat runs stay, and no
-    vertex leaves the side of the surface it started on by more than the clamp."""
+    vertex leaves the side of the surface it started on by more than the clamp.
+    flat: optional (bool (V,), offset m): those vertices first move `offset` inward along their normal (flat runs,
+    recon/hull_flat.py); the clamp, from there, grows by the offset."""
     import trimesh
 
     if not np.any(movable):
         return mesh
+    if flat is not None and np.any(flat[0]) and flat[1] > 0:
+        v = np.asarray(mesh.vertices, np.float64).copy()
+        v[flat[0]] -= flat[1] * np.asarray(mesh.vertex_normals, np.float64)[flat[0]]
+        mesh.vertices = v
+        max_move = max_move + flat[1]
     start = np.asarray(mesh.vertices, np.float64).copy()
     lap = trimesh.smoothing.laplacian_calculation(mesh)     # row-normalised adjacency: the neighbours' mean
     idx = np.nonzero(movable)[0]

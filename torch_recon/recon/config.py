@@ -258,6 +258,16 @@ class FastConfig:
                                       # curved-wall F@2cm 0.941 -> 0.935; with explain_neighbour_power 1 it gives the
                                       # table's leg back (table hidden R 0.857 -> 0.892) but the lamp pays: opt-in
                                       # (docs/reconstruction.md "Islands that hold restored blockers"); 0: off
+    mesh_hull_flat_centre_voxels: float = 0.0  # > 0: the shrinkable hull's vertices on a flat axis-aligned patch of at
+                                          # least mesh_hull_flat_patch_faces voxel faces move this far inward along
+                                          # their normal first (recon/hull_flat.py): no light bounds such a face, the
+                                          # true plane lies anywhere in the outer voxel layer, marching cubes puts it
+                                          # at the layer's outer side, and the smoothing leaves flat runs. Session 14,
+                                          # 0.25 (re-exports of main 1b1ffda's fits): dark-room F@2cm / hidden R 0.909 /
+                                          # 0.842 -> 0.927 / 0.894 (box +x face), organic-occluded 0.805 / 0.778 ->
+                                          # 0.808 / 0.780, outside-fov 0.657 / 0.612 -> 0.641 / 0.596 (the column's
+                                          # -x face, eroded, moves further in): opt-in; 0: off
+    mesh_hull_flat_patch_faces: int = 15  # ... the patch size (coplanar faces of hull voxels towards carved space)
     mesh_hull_shrink_graze_samples: int = 4  # ... except hull voxels a shadowed segment grazes (crosses at most this
                                           # many marching samples of the hull: the shadow's edge); 0: none excepted
                                           # (with the silhouette rule 0 and 4 differ by <= 0.001 on organic / dark-room)
@@ -412,6 +422,12 @@ class FitConfig:
         if not 0.0 <= self.fast.mesh_hull_shrink_voxels <= 0.5:
             raise SettingsError("fast.mesh_hull_shrink_voxels",
                                 f"expected voxels in [0, 0.5] (0: off), got {self.fast.mesh_hull_shrink_voxels}")
+        if not 0.0 <= self.fast.mesh_hull_flat_centre_voxels <= 0.5:
+            raise SettingsError("fast.mesh_hull_flat_centre_voxels",
+                                f"expected voxels in [0, 0.5] (0: off), got {self.fast.mesh_hull_flat_centre_voxels}")
+        if not (isinstance(self.fast.mesh_hull_flat_patch_faces, int) and self.fast.mesh_hull_flat_patch_faces >= 1):
+            raise SettingsError("fast.mesh_hull_flat_patch_faces",
+                                f"expected a face count >= 1, got {self.fast.mesh_hull_flat_patch_faces}")
         if self.fast.mesh_hull_shrink_graze_samples < 0:
             raise SettingsError("fast.mesh_hull_shrink_graze_samples",
                                 f"expected an integer >= 0 (0: no shadow-edge exception), got "

@@ -356,7 +356,13 @@ class FastModel(ReconstructionModel):
         vol = torch.as_tensor(volume)
         movable = shrinkable_hull(self, self._start_raw, self.evidence, self.fc.mesh_hull_shrink_graze_samples,
                                   vol >= level + 0.5 * (float(vol.max()) - level))   # saturated: level + half
-        return movable.cpu().numpy(), self.fc.mesh_hull_shrink_voxels * self.grid.box.voxel, SHRINK_ITERATIONS
+        out = (movable.cpu().numpy(), self.fc.mesh_hull_shrink_voxels * self.grid.box.voxel, SHRINK_ITERATIONS)
+        if self.fc.mesh_hull_flat_centre_voxels > 0:     # flat patches first move inward (hull_flat.py)
+            from .hull_flat import flat_patch_voxels
+            free = (self._start_raw <= self.fc.raw_free + 1e-3).cpu().numpy()
+            out += (flat_patch_voxels(out[0], free, self.fc.mesh_hull_flat_patch_faces),
+                    self.fc.mesh_hull_flat_centre_voxels * self.grid.box.voxel)
+        return out
 
     def params_finite(self) -> bool:
         return bool(torch.isfinite(self.grid.raw).all())
