@@ -149,24 +149,19 @@ class FitConfig:
             raise SettingsError("fast.hull_opening_voxels", f"expected an integer >= 0 (0: off), got {self.fast.hull_opening_voxels}")
         if self.fast.trim_hull_voxels < 0:
             raise SettingsError("fast.trim_hull_voxels", f"expected an integer >= 0 (0: off), got {self.fast.trim_hull_voxels}")
-        if not 0.0 <= self.fast.mesh_hull_inset_voxels <= 0.45:
-            raise SettingsError("fast.mesh_hull_inset_voxels",
-                                f"expected voxels in [0, 0.45] (0: off), got {self.fast.mesh_hull_inset_voxels}")
-        if not 0.0 <= self.fast.mesh_sheet_inset_voxels <= 0.45:
-            raise SettingsError("fast.mesh_sheet_inset_voxels",
-                                f"expected voxels in [0, 0.45] (0: off), got {self.fast.mesh_sheet_inset_voxels}")
-        if not 0.0 <= self.fast.mesh_lone_inset_voxels <= 0.45:
-            raise SettingsError("fast.mesh_lone_inset_voxels",
-                                f"expected voxels in [0, 0.45] (0: off), got {self.fast.mesh_lone_inset_voxels}")
-        if not 1 <= self.fast.mesh_sheet_max_voxels <= 4:
-            raise SettingsError("fast.mesh_sheet_max_voxels",
-                                f"expected voxels in [1, 4], got {self.fast.mesh_sheet_max_voxels}")
-        if not 1 <= self.fast.mesh_sheet_min_in_plane <= 8:
-            raise SettingsError("fast.mesh_sheet_min_in_plane",
-                                f"expected a count in [1, 8], got {self.fast.mesh_sheet_min_in_plane}")
-        if not 0 <= self.fast.mesh_hull_inset_max_voxels <= 8:
-            raise SettingsError("fast.mesh_hull_inset_max_voxels",
-                                f"expected voxels in [0, 8] (0: any thickness), got {self.fast.mesh_hull_inset_max_voxels}")
+        # bounded fast.* settings: (key, low, high, unit, what 0 means) -> one line naming the key
+        for key, low, high, unit, note in (("mesh_hull_inset_voxels", 0, 0.45, "voxels", " (0: off)"),
+                                           ("mesh_sheet_inset_voxels", 0, 0.45, "voxels", " (0: off)"),
+                                           ("mesh_lone_inset_voxels", 0, 0.45, "voxels", " (0: off)"),
+                                           ("mesh_sheet_max_voxels", 1, 4, "voxels", ""),
+                                           ("mesh_sheet_min_in_plane", 1, 8, "a count", ""),
+                                           ("mesh_hull_inset_max_voxels", 0, 8, "voxels", " (0: any thickness)"),
+                                           ("mesh_hull_shrink_voxels", 0, 0.5, "voxels", " (0: off)"),
+                                           ("mesh_hull_flat_centre_voxels", 0, 0.5, "voxels", " (0: off)"),
+                                           ("mesh_level_shift_voxels", -0.5, 0.5, "voxels", " (0: off)"),):
+            value = getattr(self.fast, key)
+            if not low <= value <= high:     # NaN fails too
+                raise SettingsError(f"fast.{key}", f"expected {unit} in [{low}, {high}]{note}, got {value}")
         if not 1 <= self.fast.mesh_hull_inset_min_voxels <= max(self.fast.mesh_hull_inset_max_voxels, 1):
             raise SettingsError("fast.mesh_hull_inset_min_voxels",
                                 f"expected voxels in [1, fast.mesh_hull_inset_max_voxels], got "
@@ -174,12 +169,6 @@ class FitConfig:
         if not (isinstance(self.fast.mesh_keep_restored_voxels, int) and self.fast.mesh_keep_restored_voxels >= 0):
             raise SettingsError("fast.mesh_keep_restored_voxels",
                                 f"expected a voxel count >= 0 (0: off), got {self.fast.mesh_keep_restored_voxels}")
-        if not 0.0 <= self.fast.mesh_hull_shrink_voxels <= 0.5:
-            raise SettingsError("fast.mesh_hull_shrink_voxels",
-                                f"expected voxels in [0, 0.5] (0: off), got {self.fast.mesh_hull_shrink_voxels}")
-        if not 0.0 <= self.fast.mesh_hull_flat_centre_voxels <= 0.5:
-            raise SettingsError("fast.mesh_hull_flat_centre_voxels",
-                                f"expected voxels in [0, 0.5] (0: off), got {self.fast.mesh_hull_flat_centre_voxels}")
         if not (isinstance(self.fast.mesh_hull_flat_patch_faces, int) and self.fast.mesh_hull_flat_patch_faces >= 1):
             raise SettingsError("fast.mesh_hull_flat_patch_faces",
                                 f"expected a face count >= 1, got {self.fast.mesh_hull_flat_patch_faces}")
@@ -187,9 +176,6 @@ class FitConfig:
             raise SettingsError("fast.mesh_hull_shrink_graze_samples",
                                 f"expected an integer >= 0 (0: no shadow-edge exception), got "
                                 f"{self.fast.mesh_hull_shrink_graze_samples}")
-        if not -0.5 <= self.fast.mesh_level_shift_voxels <= 0.5:
-            raise SettingsError("fast.mesh_level_shift_voxels",
-                                f"expected voxels in [-0.5, 0.5] (0: off), got {self.fast.mesh_level_shift_voxels}")
         if not self.fast.normal_weight >= 0:
             raise SettingsError("fast.normal_weight", f"expected a weight >= 0 (0: off), got {self.fast.normal_weight}")
         if not 0 < self.fast.normal_max_angle_deg <= 90:
