@@ -65,6 +65,17 @@ def _as_numpy(volume) -> np.ndarray:
     return v
 
 
+@dataclass
+class InwardSmoothing:
+    """The hidden hull's bounded inward smoothing (`inward_smoothing`) on the grid of the exported volume."""
+
+    movable: np.ndarray               # (same shape as the volume) bool: voxels whose mesh vertices may move inward
+    max_move_m: float                 # no vertex moves farther than this from where the Taubin passes left it
+    iterations: int                   # Laplacian steps
+    flat_voxels: np.ndarray | None = None  # optional bool volume: flat patches, first moved `flat_offset_m` inward
+    flat_offset_m: float = 0.0
+
+
 def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: bool = True,
                      min_island_fraction: float = 0.01, free_space=None, smooth_iterations: int = 0,
                      free_points=None, keep_near=None, inward=None):
@@ -80,9 +91,9 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
     keep_near: optional (points (N, 3), radius_m): a small island with a vertex within radius of one of these
     points is kept (measured thin parts: a one-voxel pole stepping diagonally between voxels falls apart into
     pieces below the island size, which are not specks).
-    inward: optional (movable (same shape as the volume, bool), max_move_m, iterations): after the Taubin passes,
-    the vertices whose voxel just inside them (half a grid step against the normal) is movable are smoothed
-    further, only inward and at most max_move_m from where they were (`inward_smoothing`).
+    inward: optional `InwardSmoothing`: after the Taubin passes, the vertices whose voxel just inside them (half a
+    grid step against the normal) is movable are smoothed further, only inward and at most max_move_m from where
+    they were (`inward_smoothing`).
     Faces of zero area are removed and coincident vertices merged in every case.
     """
     import trimesh
@@ -116,14 +127,13 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
         trimesh.smoothing.filter_taubin(mesh, lamb=0.5, nu=0.53, iterations=int(smooth_iterations),
                                         laplacian_operator=lap)
     if inward is not None and len(mesh.faces):
-        movable, max_move, iterations = inward[:3]
         inside = mesh.vertices - 0.5 * spacing * mesh.vertex_normals
         g = np.clip(np.rint((inside - lo) / spacing).astype(np.int64), 0, np.array(np.shape(volume)) - 1)
-        mov = np.asarray(movable, bool)[g[:, 0], g[:, 1], g[:, 2]]
+        mov = np.asarray(inward.movable, bool)[g[:, 0], g[:, 1], g[:, 2]]
         flat = None
-        if len(inward) > 3:     # (flat patch voxels, offset m): those vertices first move inward along the normal
-            flat = (mov & np.asarray(inward[3], bool)[g[:, 0], g[:, 1], g[:, 2]], float(inward[4]))
-        inward_smoothing(mesh, mov, float(max_move), int(iterations), flat=flat)
+        if inward.flat_voxels is not None:     # those vertices first move inward along the normal
+            flat = (mov & np.asarray(inward.flat_voxels, bool)[g[:, 0], g[:, 1], g[:, 2]], float(inward.flat_offset_m))
+        inward_smoothing(mesh, mov, float(inward.max_move_m), int(inward.iterations), flat=flat)
     removed = 0
     if min_island_fraction > 0 and len(mesh.faces):
         # islands = faces connected through shared edges (as mesh.split), labelled in one pass: split builds a

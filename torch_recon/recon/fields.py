@@ -61,6 +61,18 @@ class GridBox:
         return torch.stack(torch.meshgrid(*axes, indexing="ij"), -1)
 
 
+def next_to(mask: torch.Tensor) -> torch.Tensor:
+    """Voxels with a 6-neighbour in `mask` (nx, ny, nz) bool."""
+    p = F.pad(mask.float()[None, None], (1,) * 6)[0, 0]
+    n = torch.zeros_like(mask)
+    for axis in range(3):
+        for t in (0, 2):
+            sl = [slice(1, 1 + s) for s in mask.shape]
+            sl[axis] = slice(t, t + mask.shape[axis])
+            n |= p[tuple(sl)] > 0
+    return n
+
+
 class DensityGrid(nn.Module):
     """sigma(x) = scale * softplus(trilinear(raw)), raw stored as (1, 1, nz, ny, nx) for grid_sample."""
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from .fields import next_to
 from .hull_trim import sole_blockers
 from .sampler import ray_box
 from .segment_crossings import accumulate_crossings, pair_segments
@@ -25,18 +26,6 @@ from .voxel_evidence import VoxelEvidence, carving_pixel_mask
 
 #: Laplacian steps of the inward smoothing (each moves a vertex half-way to its neighbours' mean at most)
 SHRINK_ITERATIONS = 10
-
-
-def _next_to(mask: torch.Tensor) -> torch.Tensor:
-    """Voxels with a 6-neighbour in `mask` (nx, ny, nz) bool."""
-    p = F.pad(mask.float()[None, None], (1,) * 6)[0, 0]
-    n = torch.zeros_like(mask)
-    for axis in range(3):
-        for t in (0, 2):
-            sl = [slice(1, 1 + s) for s in mask.shape]
-            sl[axis] = slice(t, t + mask.shape[axis])
-            n |= p[tuple(sl)] > 0
-    return n
 
 
 def hull_voxels(start_raw: torch.Tensor, raw_free: float, raw_occupied: float, lit_crossed: torch.Tensor, keep=None):
@@ -47,7 +36,7 @@ def hull_voxels(start_raw: torch.Tensor, raw_free: float, raw_occupied: float, l
     occ = start_raw >= raw_occupied - 1e-3
     free = start_raw <= raw_free + 1e-3
     ramp = ~occ & ~free
-    hull = occ & ~lit_crossed & _next_to(free) & ~_next_to(ramp)
+    hull = occ & ~lit_crossed & next_to(free) & ~next_to(ramp)
     return hull if keep is None else hull & ~keep.to(hull.device)
 
 
@@ -83,7 +72,7 @@ def shrinkable_hull(model, start_raw: torch.Tensor, evidence: VoxelEvidence, gra
     hull = hull_voxels(start_raw, fc.raw_free, fc.raw_occupied, lit, keep)
     hull = hull if occupied is None else hull & occupied.to(hull.device)
     if silhouettes:     # a face the sensor saw past is its silhouette, placed to a pixel
-        hull &= ~_next_to(camera_free(model, box).to(hull.device))
+        hull &= ~next_to(camera_free(model, box).to(hull.device))
     if graze_samples > 0:
         solid = (start_raw > fc.raw_free + 1e-3).reshape(-1)
         edge = sole_blockers(box, solid, pair_segments(data, data.shadowed & on_sub, off), step, max_samples=graze_samples)

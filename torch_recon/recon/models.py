@@ -11,6 +11,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from ..mesh_export import InwardSmoothing
 from .config import FitConfig
 from .data import RayData, lit_path_tolerance, unexplained_lit, without_lit
 from .fields import DensityGrid, GridBox
@@ -347,8 +348,8 @@ class FastModel(ReconstructionModel):
         return raw.cpu().numpy(), level
 
     def mesh_inward(self, volume, level: float):
-        """(movable voxels, metres, steps) for the mesh's bounded inward smoothing of the hidden hull
-        (`fast.mesh_hull_shrink_voxels`, hull_subvoxel.py) of the mesh field `volume` (`surface_volume`), or None."""
+        """The mesh's bounded inward smoothing of the hidden hull (`mesh_export.InwardSmoothing`;
+        `fast.mesh_hull_shrink_voxels`, hull_subvoxel.py) of the mesh field `volume` (`surface_volume`), or None."""
         if self.fc.mesh_hull_shrink_voxels <= 0:
             return None
         if self._start_raw is None or tuple(self._start_raw.shape) != tuple(self.grid.box.shape):
@@ -356,12 +357,13 @@ class FastModel(ReconstructionModel):
         vol = torch.as_tensor(volume)
         movable = shrinkable_hull(self, self._start_raw, self.evidence, self.fc.mesh_hull_shrink_graze_samples,
                                   vol >= level + 0.5 * (float(vol.max()) - level))   # saturated: level + half
-        out = (movable.cpu().numpy(), self.fc.mesh_hull_shrink_voxels * self.grid.box.voxel, SHRINK_ITERATIONS)
+        out = InwardSmoothing(movable.cpu().numpy(), self.fc.mesh_hull_shrink_voxels * self.grid.box.voxel,
+                              SHRINK_ITERATIONS)
         if self.fc.mesh_hull_flat_centre_voxels > 0:     # flat patches first move inward (hull_flat.py)
             from .hull_flat import flat_patch_voxels
             free = (self._start_raw <= self.fc.raw_free + 1e-3).cpu().numpy()
-            out += (flat_patch_voxels(out[0], free, self.fc.mesh_hull_flat_patch_faces),
-                    self.fc.mesh_hull_flat_centre_voxels * self.grid.box.voxel)
+            out.flat_voxels = flat_patch_voxels(out.movable, free, self.fc.mesh_hull_flat_patch_faces)
+            out.flat_offset_m = self.fc.mesh_hull_flat_centre_voxels * self.grid.box.voxel
         return out
 
     def params_finite(self) -> bool:

@@ -19,6 +19,8 @@ import heapq
 import numpy as np
 import torch
 
+from .fields import next_to
+
 
 def greedy_cover(segment: torch.Tensor, voxel: torch.Tensor, lit_count: torch.Tensor, lit_power: float,
                  weight: torch.Tensor | None = None) -> torch.Tensor:
@@ -58,23 +60,13 @@ def greedy_cover(segment: torch.Tensor, voxel: torch.Tensor, lit_count: torch.Te
     return torch.as_tensor(np.sort(np.asarray(picked, dtype=np.int64)), device=voxel.device)
 
 
-def next_to(mask: torch.Tensor, shape) -> torch.Tensor:
-    """Flat bool: the voxels of `mask` (flat) and their 6-neighbours."""
-    m = mask.reshape(shape)
-    out = m.clone()
-    for axis in range(3):
-        out[(slice(None),) * axis + (slice(1, None),)] |= m[(slice(None),) * axis + (slice(None, -1),)]
-        out[(slice(None),) * axis + (slice(None, -1),)] |= m[(slice(None),) * axis + (slice(1, None),)]
-    return out.reshape(-1)
-
-
 def best_near_cover(segment: torch.Tensor, voxel: torch.Tensor, score: torch.Tensor, cover: torch.Tensor,
                     shape) -> torch.Tensor:
     """Flat voxel indices (unique): each segment's best-scored candidate among those at or next to (6-neighbours) a
     voxel of the shared cover (`greedy_cover`): the blocker stays the segment's own, on the part the cover found."""
     near = torch.zeros(int(score.numel()), dtype=torch.bool, device=voxel.device)
     near[cover] = True
-    near = next_to(near, shape)
+    near = (near.reshape(shape) | next_to(near.reshape(shape))).reshape(-1)     # the cover and its 6-neighbours
     ok = near[voxel]
     seg, vox = segment[ok].long(), voxel[ok].long()
     sc = score[vox].double()

@@ -16,6 +16,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from .fields import next_to
+
 
 def _shifted(mask: torch.Tensor, offset, fill: bool, pad: int = 1) -> torch.Tensor:
     """mask[v + offset] for every voxel v (offset: 3 ints, each within `pad`); `fill` outside the box."""
@@ -51,11 +53,7 @@ def one_voxel_sheets(occupied: torch.Tensor, free: torch.Tensor, min_in_plane: i
 
 def lone_voxels(occupied: torch.Tensor) -> torch.Tensor:
     """Occupied voxels (nx, ny, nz bool) none of whose 6 neighbours is occupied."""
-    lone = occupied.clone()
-    for axis in range(3):
-        for sign in (-1, 1):
-            lone &= ~_shifted(occupied, [sign if a == axis else 0 for a in range(3)], False)
-    return lone
+    return occupied & ~next_to(occupied)
 
 
 def sheet_inset(clipped: torch.Tensor, level: float, half: float, inset_voxels: float, min_in_plane: int = 4,
@@ -72,12 +70,7 @@ def sheet_inset(clipped: torch.Tensor, level: float, half: float, inset_voxels: 
     if seen is not None:
         free = free & ~seen.to(free.device)
     ramp = (clipped > level - half + 1e-4) & (clipped < level)
-    lower = one_voxel_sheets(occ, free, min_in_plane, max_run)
-    for axis in range(3):
-        for sign in (-1, 1):
-            step = [0, 0, 0]
-            step[axis] = sign
-            lower &= ~_shifted(ramp, step, False)
+    lower = one_voxel_sheets(occ, free, min_in_plane, max_run) & ~next_to(ramp)
     if keep is not None:
         lower &= ~keep.to(lower.device)
     out = clipped.clone()

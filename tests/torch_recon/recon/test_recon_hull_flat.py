@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from torch_recon.contract.errors import SettingsError
-from torch_recon.mesh_export import mesh_from_volume
+from torch_recon.mesh_export import InwardSmoothing, mesh_from_volume
 from torch_recon.recon.config import FitConfig, override
 from torch_recon.recon.hull_flat import flat_patch_voxels
 
@@ -36,9 +36,9 @@ def test_the_flat_face_moves_inward_by_the_offset_where_smoothing_alone_leaves_i
     hull[4:8, 4:12, 4:12] = False                # the outer layer only
     free = vol == 0
     kw = dict(min_island_fraction=0, smooth_iterations=0)
-    plain, _ = mesh_from_volume(vol, (0, 0, 0), (15, 15, 15), 0.5, inward=(hull, 0.5, 10), **kw)
+    plain, _ = mesh_from_volume(vol, (0, 0, 0), (15, 15, 15), 0.5, inward=InwardSmoothing(hull, 0.5, 10), **kw)
     flat, _ = mesh_from_volume(vol, (0, 0, 0), (15, 15, 15), 0.5,
-                               inward=(hull, 0.5, 10, flat_patch_voxels(hull, free, 15), 0.25), **kw)
+                               inward=InwardSmoothing(hull, 0.5, 10, flat_patch_voxels(hull, free, 15), 0.25), **kw)
     mid = lambda m: m.vertices[(np.abs(m.vertices[:, 1] - 7.5) < 1.6) & (np.abs(m.vertices[:, 2] - 7.5) < 1.6)
                                & (m.vertices[:, 0] > 8)]
     assert np.all(mid(plain)[:, 0] > 8.44)                        # the smoothing leaves the flat run (about)

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from torch_recon.contract.errors import SettingsError
-from torch_recon.mesh_export import inward_smoothing, mesh_from_volume
+from torch_recon.mesh_export import InwardSmoothing, inward_smoothing, mesh_from_volume
 from torch_recon.recon.config import FitConfig, override
 from torch_recon.recon.hull_subvoxel import hull_voxels
 
@@ -38,10 +38,10 @@ def test_inward_smoothing_through_the_exporter_only_where_movable():
     vol = _cube_volume()
     plain, _ = mesh_from_volume(vol, (0, 0, 0), (11, 11, 11), 0.5, min_island_fraction=0)
     none, _ = mesh_from_volume(vol, (0, 0, 0), (11, 11, 11), 0.5, min_island_fraction=0,
-                               inward=(np.zeros(vol.shape, bool), 0.4, 10))
+                               inward=InwardSmoothing(np.zeros(vol.shape, bool), 0.4, 10))
     assert np.allclose(plain.vertices, none.vertices)
     cut, _ = mesh_from_volume(vol, (0, 0, 0), (11, 11, 11), 0.5, min_island_fraction=0,
-                              inward=(vol > 0, 0.4, 10))
+                              inward=InwardSmoothing(vol > 0, 0.4, 10))
     assert cut.volume < plain.volume - 1.0 and np.all(np.isfinite(cut.vertices))
 
 
@@ -83,7 +83,8 @@ def test_fast_model_moves_only_the_hidden_hull_and_only_when_asked():
     vol, level = model.surface_volume()
     assert model.mesh_inward(vol, level) is None
     cfg.fast.mesh_hull_shrink_voxels = 0.4
-    movable, metres, steps = model.mesh_inward(vol, level)
+    inward = model.mesh_inward(vol, level)
+    movable, metres, steps = inward.movable, inward.max_move_m, inward.iterations
     assert movable.any() and metres == pytest.approx(0.4 * model.grid.box.voxel) and steps > 0
     centres = model.grid.box.centres().numpy()[movable]
     # the hull behind the box's seen front face (its back, the floor its shadow hides), not the measured surfaces
@@ -92,8 +93,9 @@ def test_fast_model_moves_only_the_hidden_hull_and_only_when_asked():
     seen = (data.sensor_origin + data.pixel_dirs * data.visible_depth[:, None])[torch.isfinite(data.visible_depth)]
     idx, inside = model.grid.box.cell_index(seen)
     assert not movable[tuple(idx[inside].T.numpy())].any()      # no voxel holding a measured surface point
-    from torch_recon.recon.hull_subvoxel import _next_to, camera_free
-    assert not (movable & _next_to(camera_free(model, model.grid.box)).numpy()).any()     # no silhouette face
+    from torch_recon.recon.fields import next_to
+    from torch_recon.recon.hull_subvoxel import camera_free
+    assert not (movable & next_to(camera_free(model, model.grid.box)).numpy()).any()     # no silhouette face
 
 
 def test_the_export_reads_the_start_fields_lit_crossings_back_and_marches_no_lit_segment(monkeypatch):
@@ -131,7 +133,7 @@ def test_the_export_reads_the_start_fields_lit_crossings_back_and_marches_no_lit
     for module in (crossings, hull_trim):
         monkeypatch.setattr(module, "marching_cells", counted)
     vol, level = model.surface_volume()
-    movable, _, _ = model.mesh_inward(vol, level)
+    movable = model.mesh_inward(vol, level).movable
     cameras = int(torch.isfinite(data.visible_depth).sum())
     shadowed = crossings.pair_segments(data, data.shadowed & on_sub, off)[0].shape[0]
     assert movable.any() and sorted(marched) == sorted([cameras, shadowed]), (marched, cameras, shadowed)
