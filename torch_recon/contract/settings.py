@@ -339,6 +339,7 @@ def add_arguments(parser: argparse.ArgumentParser, cls, flags=(), sets: bool = T
         unit = f" ({spec.unit})" if spec.unit else ""
         choices = f" (one of {', '.join(map(str, spec.choices))})" if spec.choices else ""
         text = f"{spec.help}{unit}{choices} [default {spec.default}; setting {key}]".lstrip()
+        text = text.replace("%", "%%")     # argparse %-formats help ('... 2-14 %, ...' in a field's comment)
         names = (_flag(spec), *spec.flags)
         if spec.kind is bool:
             parser.add_argument(*names, dest=dest, action=argparse.BooleanOptionalAction, default=None, help=text)

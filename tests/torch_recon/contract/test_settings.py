@@ -107,6 +107,24 @@ def test_every_stage_has_generated_options():
         assert {"--config", "--set"} <= opts, stage
 
 
+def test_every_command_help_renders():
+    """`--help` of every subcommand formats (argparse %-formats help text: a field comment's '14 %,' broke
+    `advise-spots --help` with a ValueError)."""
+    from torch_recon.cli import build_parser
+
+    def every_parser(parser):
+        yield parser
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for child in action.choices.values():
+                    yield from every_parser(child)
+
+    parsers = list(every_parser(build_parser()))
+    assert len(parsers) > 6 and any(p.prog.endswith("advise-spots") for p in parsers)
+    for parser in parsers:
+        assert parser.format_help(), parser.prog
+
+
 def test_convert_settings_from_flags_config_and_set(tmp_path):
     from torch_recon.commands.convert import ConvertSettings
 
