@@ -30,7 +30,6 @@ placed (outside-fov), lit only surfaces the sensor does not see, and preprocessi
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -40,19 +39,11 @@ import torch
 from ..contract.errors import PlatolidarError, SettingsError
 from ..contract.spots import select_diverse_spots
 from .fields import GridBox
-from .init import in_view
-from .segment_crossings import marching_cells
-from .voxel_evidence import configured_evidence_grid
+from .spot_geometry import (PATH_MARGIN_M, _longest_lit_path, _path_range_end, beyond_view_directions,
+                            degrees_beyond_view)
 from .spot_refine import covered_total, refine_spots
-from .spot_geometry import (PATH_MARGIN_M, _longest_lit_path, _path_range_end, back_facing_free,  # noqa: F401 (API)
-                            beyond_view_directions, degrees_beyond_view)
-from .visible_surface_init import coarse_sensor_seen_free, dilate_cube, visible_surface
-
-#: voxel classes along a segment (FACE: a hidden back face next to a measured surface, see voxel_classes)
-FREE, HULL, SOLID, FACE = 0, 1, 2, 3
-#: hull voxels this close (voxels, cube) to a measured surface voxel count as that surface
-SURFACE_BAND_VOXELS = 2
-
+from .spot_voxels import FACE, HULL, landing_points, laser_reaches, segment_values, voxel_classes
+from .visible_surface_init import visible_surface
 
 @dataclass
 class AdviceSettings:
@@ -147,93 +138,6 @@ def load_fit_volume(fit_dir):
     return opacity, lo, hi, level, settings
 
 
-def voxel_classes(data, box: GridBox, opacity, level, fast: dict, meta: dict, offset_m: float,
-                  back_faces: bool = False) -> torch.Tensor:
-    """Flat (x-major) class per voxel: HULL (shadow hull in the measured space, crossed by no lit segment,
-    still occupied after training, more than SURFACE_BAND_VOXELS from a measured surface), FACE (such a voxel
-    within the band that bounds free space on its side away from the sensor: `back_facing_free`; with
-    `back_faces`), SOLID (every other occupied voxel: measured surfaces, blockers, the completed planes) or
-    FREE. offset_m: the fit's secondary ray offset (FastModel.offset_for)."""
-    import dataclasses
-
-    from .config import FastConfig
-    known = {f.name for f in dataclasses.fields(FastConfig)}
-    cfg = FastConfig(**{k: v for k, v in fast.items() if k in known})
-    # labelled as the fit's start field on its final grid (a coarse sensor's seen-free space included)
-    seen = coarse_sensor_seen_free(data, box, cfg, meta)
-    label = configured_evidence_grid(data, box, cfg, offset_m, seen_free=seen)[0].label
-    view = in_view(data, box, meta["camera_to_world"], meta["fov_rad"], meta["fov_axis"])
-    occupied = torch.as_tensor(opacity >= level, device=label.device)
-    cls = torch.full(box.shape, FREE, dtype=torch.int8, device=label.device)
-    cls[occupied] = SOLID
-    # hidden voxels next to a measured surface are the surface's own thickness (a wall seen at a grazing angle
-    # has voxels no pixel's point lands in): solid, not unbounded space
-    band = dilate_cube((label == 1).float(), SURFACE_BAND_VOXELS) > 0
-    hidden = occupied & (label == 0) & view
-    cls[hidden & ~band] = HULL
-    if back_faces:  # ... but where such a voxel bounds free space on its side away from the sensor it is the back
-        # face of a part (a table top's underside, a box's far side): only light grazing it places that face
-        c2w = meta["camera_to_world"]
-        cls[hidden & band & back_facing_free(occupied, box, c2w)] = FACE
-    return cls.reshape(-1)
-
-
-def _segment_values(box, cls, hull_index, n_hull, origins, ends, off, step, prior, device):
-    """Per target voxel (HULL or FACE, compact index), the best lit probability (1 - prior)^n over the
-    segments origins -> ends that cross it with no SOLID voxel on the way (n: HULL voxels crossed; a FACE
-    voxel is passed unattenuated). The first and last `off` of each segment are skipped (its own surfaces)."""
-    v = ends - origins
-    length = torch.linalg.vector_norm(v, dim=-1)
-    good = length > 2 * off
-    o, d, length = origins[good], v[good] / length[good, None], length[good]
-    values = torch.zeros(n_hull, device=device)
-    if len(o) == 0:
-        return values
-    near = torch.full_like(length, off)
-    log_lit = math.log1p(-prior) * step / box.voxel     # per hull sample (step / voxel of a voxel)
-    for rays, flat, keep in marching_cells(box, o, d, near, length - off, step):
-        c = cls[flat.where(keep, 0.0).long()]
-        hull = keep & (c == HULL)
-        clear = ~(keep & (c == SOLID)).any(1)
-        p = torch.exp(hull.sum(1).float() * log_lit) * clear
-        sel = (hull | (keep & (c == FACE))) & clear[:, None]
-        idx = hull_index[flat[sel].long()]
-        values.scatter_reduce_(0, idx, p[:, None].expand_as(sel)[sel], "amax")
-    return values
-
-
-def _laser_reaches(box, cls, laser, points, off, step):
-    """Whether the laser's ray from `laser` to each point (N, 3) crosses no occupied voxel before it."""
-    v = points - laser
-    length = torch.linalg.vector_norm(v, dim=-1).clamp(min=1e-9)
-    ok = torch.ones(len(points), dtype=torch.bool, device=points.device)
-    far = (length - off).clamp(min=0)
-    for rays, flat, keep in marching_cells(box, laser.expand_as(points).contiguous(), v / length[:, None],
-                                            torch.zeros_like(length), far, step):
-        c = cls[flat.where(keep, 0.0).long()]
-        ok[rays] = ~(keep & (c != FREE)).any(1)
-    return ok
-
-
-def _landing_points(box, cls, laser, dirs, step):
-    """Where laser rays (unit dirs (N, 3)) first enter a SOLID voxel (NaN: a HULL voxel first, or none)."""
-    from .sampler import ray_box
-
-    org = laser.expand_as(dirs).contiguous()
-    near, far = ray_box(org, dirs, box.bbox_min, box.bbox_max)
-    near = near.clamp(min=0)
-    out = torch.full_like(dirs, float("nan"))
-    for rays, flat, keep in marching_cells(box, org, dirs, near, far, step):
-        c = cls[flat.where(keep, 0.0).long()]
-        hit = keep & (c != FREE)
-        first = torch.where(hit.any(1), hit.float().argmax(1), torch.full_like(rays, -1))
-        solid = (first >= 0) & (c.gather(1, first.clamp(min=0)[:, None]).squeeze(1) == SOLID)
-        t = near[rays] + first.float() * step
-        pts = org[rays] + dirs[rays] * t[:, None]
-        out[rays[solid]] = pts[solid]
-    return out
-
-
 def spot_normals(box, opacity, spots, surface_points, surface_normals):
     """Unit normals (N, 3) of the surfaces at spots (N, 3): the sensor-visible point's normal where one lies
     within 1.5 voxels, else minus the fit's opacity gradient around the spot's voxel (zero where flat: no
@@ -309,7 +213,7 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
     def values_of(spot: torch.Tensor, normal: torch.Tensor) -> torch.Tensor:
         # Lambertian both ways: x faces the spot and the spot's surface faces x
         facing = (((spot - xs) * ns).sum(1) > 0) & (((xs - spot) * normal).sum(1) >= 0)
-        return _segment_values(box, cls, hull_index, n_hull, xs[facing], spot.expand_as(xs[facing]), off, step,
+        return segment_values(box, cls, hull_index, n_hull, xs[facing], spot.expand_as(xs[facing]), off, step,
                                s.occupied_prior, dev)
 
     covered = torch.zeros(n_hull, device=dev)
@@ -319,10 +223,10 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
     # candidates: spread-out visible points the laser reaches (+ laser directions beyond the view)
     end_m = _path_range_end(dataset) if measurements is None else None
 
-    def laser_reaches(p):       # the laser's ray gets to the points p (N, 3) (always when it starts at the sensor)
+    def laser_gets_to(p):       # the laser's ray gets to the points p (N, 3) (always when it starts at the sensor)
         if float(torch.linalg.vector_norm(data.laser_origin - data.sensor_origin)) <= 1e-6:
             return torch.ones(len(p), dtype=torch.bool, device=dev)
-        return _laser_reaches(box, cls, data.laser_origin, p, off, step)
+        return laser_reaches(box, cls, data.laser_origin, p, off, step)
 
     def in_range(p, n):         # the sensor records every two-bounce return of spots p with normals n
         if end_m is None:
@@ -333,7 +237,7 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
     cand_pts, cand_src = [], []     # cand_src: the candidate's index into pts_all (None: beyond the view)
     pick = select_diverse_spots(pts_all.cpu().numpy(), nrm_all.cpu().numpy(), s.candidates, rng)
     p_in = pts_all[torch.as_tensor(pick, device=dev)]
-    reach = laser_reaches(p_in)
+    reach = laser_gets_to(p_in)
     p_in, pick = p_in[reach], pick[reach.cpu().numpy()]
     cand_pts.append(p_in)
     cand_src += [int(i) for i in pick]
@@ -344,7 +248,7 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
             notes.append(f"candidates up to {beyond:.0f} deg beyond the view: as far as the capture's spots")
     if beyond > 0:
         dirs = torch.as_tensor(beyond_view_directions(sensor, beyond), dtype=torch.float32, device=dev)
-        land = _landing_points(box, cls, data.laser_origin, dirs, step)
+        land = landing_points(box, cls, data.laser_origin, dirs, step)
         land = land[torch.isfinite(land).all(1)]
         if len(land):
             keep = select_diverse_spots(land.cpu().numpy(), None, max(1, s.candidates // 2), rng)
@@ -384,7 +288,7 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
     details.update(covered_greedy=float(covered.sum()), greedy=chosen)
     if s.refine_voxels > 0 and chosen:
         def usable(ids):
-            return laser_reaches(pts_all[ids]) & in_range(pts_all[ids], nrm_all[ids])
+            return laser_gets_to(pts_all[ids]) & in_range(pts_all[ids], nrm_all[ids])
 
         def values_at(ids):
             return torch.stack([values_of(pts_all[k], nrm_all[k]) for k in ids.tolist()])

@@ -101,7 +101,7 @@ def test_a_coarse_sensor_hull_leaves_out_what_the_sensor_saw_through():
     from torch_recon.recon.data import build_ray_data
     from torch_recon.recon.fields import GridBox
     from torch_recon.recon.init import grid_bbox
-    from torch_recon.recon.spot_advice import HULL, voxel_classes
+    from torch_recon.recon.spot_voxels import HULL, voxel_classes
     from torch_recon.recon.visible_surface_init import coarse_sensor_seen_free
 
     meas = ideal_measurements(box_floor_mesh(), CAMERA, 16, 16, LEFT, fov_rad=np.deg2rad(70.0))
@@ -123,7 +123,7 @@ def test_beyond_view_none_aims_as_far_beyond_the_view_as_the_capture_s_spots():
     from types import SimpleNamespace
 
     from torch_recon.contract.frames import look_at_c2w
-    from torch_recon.recon.spot_advice import degrees_beyond_view
+    from torch_recon.recon.spot_geometry import degrees_beyond_view
 
     assert AdviceSettings().beyond_view_deg == 0.0
     # looking along +y with a 90 deg view: the image edge is 45 deg off-axis
@@ -152,7 +152,7 @@ def _slab_grid():
 def test_back_faces_are_the_sides_of_a_part_facing_away_from_the_sensor():
     """A slab seen from above and in front: its underside, its far side and its left side (the sensor is
     right of it) bound free space away from the sensor; its top and front do not (the sensor sees them)."""
-    from torch_recon.recon.spot_advice import back_facing_free
+    from torch_recon.recon.spot_geometry import back_facing_free
 
     box, occupied, c2w = _slab_grid()
     back = back_facing_free(occupied, box, c2w)
@@ -167,7 +167,7 @@ def test_light_grazing_a_back_face_places_it():
     """A FACE voxel (a hidden back face next to a measured surface) is a target the light passes, not a
     blocker and not unbounded hull: a segment along the slab's underside values each of its voxels 1; as HULL
     the same voxels are worth (1 - prior)^n; one SOLID voxel on the way stops the segment."""
-    from torch_recon.recon.spot_advice import FACE, HULL, SOLID, _segment_values
+    from torch_recon.recon.spot_voxels import FACE, HULL, SOLID, segment_values
 
     box, occupied, _ = _slab_grid()
     layer = torch.zeros(10, 10, 10, dtype=torch.bool)
@@ -180,7 +180,7 @@ def test_light_grazing_a_back_face_places_it():
     def values(kind):
         cls = torch.zeros(1000, dtype=torch.int8)
         cls[flat] = kind
-        return _segment_values(box, cls, index, len(flat), start, end, 0.0, 0.05, 0.25, "cpu")
+        return segment_values(box, cls, index, len(flat), start, end, 0.0, 0.05, 0.25, "cpu")
 
     assert torch.allclose(values(FACE), torch.ones(6))
     hull = values(HULL)
