@@ -149,6 +149,8 @@ def flat_patches_inward(model, inward) -> None:
     if not fc.mesh_hull_flat_approach:
         inward.flat_offset_m = fc.mesh_hull_flat_centre_voxels * box.voxel
         return
+    if not inward.flat_voxels.any():        # (cave-chair: its hull's faces are small or beside the light)
+        return
     flat = torch.as_tensor(inward.flat_voxels)
     cells = (F.max_pool3d(flat[None, None].float(), 3, 1, 1)[0, 0] > 0) & torch.as_tensor(free)  # (6-neighbours and more)
     approach = light_approach(box, *carving_segments(model, lit=True), cells.to(box.bbox_min.device))

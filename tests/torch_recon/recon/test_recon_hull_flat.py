@@ -1,4 +1,5 @@
-"""Flat faces of the hidden hull move to their voxel layer's centre (recon/hull_flat.py; session 14)."""
+"""Flat faces of the hidden hull move inward: to their voxel layer's centre (session 14) or to the middle of the gap the
+light left (`fast.mesh_hull_flat_approach`, session 15; recon/hull_flat.py)."""
 
 from __future__ import annotations
 
@@ -48,9 +49,10 @@ def test_the_flat_face_moves_inward_by_the_offset_where_smoothing_alone_leaves_i
 
 
 def test_flat_centre_setting_is_range_checked():
-    assert override(FitConfig(mode="fast"), ["fast.mesh_hull_flat_centre_voxels=0.25"]).fast.mesh_hull_flat_centre_voxels == 0.25
+    fixed = override(FitConfig(mode="fast"), ["fast.mesh_hull_flat_approach=false", "fast.mesh_hull_flat_centre_voxels=0.25"])
+    assert fixed.fast.mesh_hull_flat_centre_voxels == 0.25
     with pytest.raises(SettingsError, match="fast.mesh_hull_flat_centre_voxels"):
-        override(FitConfig(mode="fast"), ["fast.mesh_hull_flat_centre_voxels=0.8"])
+        override(FitConfig(mode="fast"), ["fast.mesh_hull_flat_approach=false", "fast.mesh_hull_flat_centre_voxels=0.8"])
     with pytest.raises(SettingsError, match="fast.mesh_hull_flat_patch_faces"):
         override(FitConfig(mode="fast"), ["fast.mesh_hull_flat_patch_faces=0"])
 
@@ -163,7 +165,8 @@ def test_the_hidden_flat_face_moves_to_the_lights_gap_in_a_fitted_scene():
     assert abs(back_face_offset(True)) < 0.01
 
 
-def test_flat_approach_setting_excludes_the_fixed_offset():
-    assert override(FitConfig(mode="fast"), ["fast.mesh_hull_flat_approach=true"]).fast.mesh_hull_flat_approach
+def test_flat_approach_is_the_default_and_excludes_the_fixed_offset():
+    assert FitConfig(mode="fast").fast.mesh_hull_flat_approach      # the default since session 15
+    assert not override(FitConfig(mode="fast"), ["fast.mesh_hull_flat_approach=false"]).fast.mesh_hull_flat_approach
     with pytest.raises(SettingsError, match="fast.mesh_hull_flat_approach"):
-        override(FitConfig(mode="fast"), ["fast.mesh_hull_flat_approach=true", "fast.mesh_hull_flat_centre_voxels=0.25"])
+        override(FitConfig(mode="fast"), ["fast.mesh_hull_flat_centre_voxels=0.25"])
