@@ -74,6 +74,8 @@ class InwardSmoothing:
     iterations: int                   # Laplacian steps
     flat_voxels: np.ndarray | None = None  # optional bool volume: flat patches, first moved `flat_offset_m` inward
     flat_offset_m: float = 0.0
+    flat_face_offsets_m: np.ndarray | None = None  # optional (volume shape + (6,)) float: per flat voxel and face
+                                      # (-x, +x, -y, +y, -z, +z), the offset of that face's vertices instead
 
 
 def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: bool = True,
@@ -133,6 +135,11 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
         flat = None
         if inward.flat_voxels is not None:     # those vertices first move inward along the normal
             flat = (mov & np.asarray(inward.flat_voxels, bool)[g[:, 0], g[:, 1], g[:, 2]], float(inward.flat_offset_m))
+            if inward.flat_face_offsets_m is not None:     # by their voxel face's own offset (the normal's axis)
+                n = np.asarray(mesh.vertex_normals)
+                axis = np.abs(n).argmax(1)
+                face = 2 * axis + (n[np.arange(len(n)), axis] > 0)
+                flat = (flat[0], np.where(flat[0], inward.flat_face_offsets_m[g[:, 0], g[:, 1], g[:, 2], face], 0.0))
         inward_smoothing(mesh, mov, float(inward.max_move_m), int(inward.iterations), flat=flat)
     removed = 0
     if min_island_fraction > 0 and len(mesh.faces):
@@ -162,17 +169,21 @@ def inward_smoothing(mesh, movable, max_move: float, iterations: int, lamb: floa
     (along the vertex normal) removed and the total displacement clamped to `max_move` (m), in place: a
     staircase's convex steps are cut (a visual hull over-estimates its object), its flat runs stay, and no
     vertex leaves the side of the surface it started on by more than the clamp.
-    flat: optional (bool (V,), offset m): those vertices first move `offset` inward along their normal (flat runs,
-    recon/hull_flat.py); the clamp, from there, grows by the offset."""
+    flat: optional (bool (V,), offset m: one or per vertex (V,)): those vertices first move `offset` inward along
+    their normal (flat runs, recon/hull_flat.py); the clamp, from there, grows by the largest offset."""
     import trimesh
 
     if not np.any(movable):
         return mesh
-    if flat is not None and np.any(flat[0]) and flat[1] > 0:
-        v = np.asarray(mesh.vertices, np.float64).copy()
-        v[flat[0]] -= flat[1] * np.asarray(mesh.vertex_normals, np.float64)[flat[0]]
-        mesh.vertices = v
-        max_move = max_move + flat[1]
+    if flat is not None and np.any(flat[0]):
+        offset = np.broadcast_to(np.asarray(flat[1], np.float64), (len(mesh.vertices),))[flat[0]]
+        if not np.all(np.isfinite(offset)):
+            raise MeshExportError("flat hull offsets are not finite")
+        if offset.max() > 0:
+            v = np.asarray(mesh.vertices, np.float64).copy()
+            v[flat[0]] -= offset[:, None] * np.asarray(mesh.vertex_normals, np.float64)[flat[0]]
+            mesh.vertices = v
+            max_move = max_move + float(offset.max())
     start = np.asarray(mesh.vertices, np.float64).copy()
     lap = trimesh.smoothing.laplacian_calculation(mesh)     # row-normalised adjacency: the neighbours' mean
     idx = np.nonzero(movable)[0]

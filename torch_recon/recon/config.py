@@ -169,6 +169,10 @@ class FitConfig:
         if not (isinstance(self.fast.mesh_keep_restored_voxels, int) and self.fast.mesh_keep_restored_voxels >= 0):
             raise SettingsError("fast.mesh_keep_restored_voxels",
                                 f"expected a voxel count >= 0 (0: off), got {self.fast.mesh_keep_restored_voxels}")
+        if self.fast.mesh_hull_flat_approach and self.fast.mesh_hull_flat_centre_voxels > 0:
+            raise SettingsError("fast.mesh_hull_flat_approach", "moves the flat hull faces by the light's gap: not "
+                                f"with fast.mesh_hull_flat_centre_voxels {self.fast.mesh_hull_flat_centre_voxels} "
+                                "(set fast.mesh_hull_flat_approach=false for the fixed offset)")
         if not (isinstance(self.fast.mesh_hull_flat_patch_faces, int) and self.fast.mesh_hull_flat_patch_faces >= 1):
             raise SettingsError("fast.mesh_hull_flat_patch_faces",
                                 f"expected a face count >= 1, got {self.fast.mesh_hull_flat_patch_faces}")

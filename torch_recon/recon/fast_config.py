@@ -234,7 +234,18 @@ class FastConfig:
                                           # 0.25 (re-exports of main 1b1ffda's fits): dark-room F@2cm / hidden R 0.909 /
                                           # 0.842 -> 0.927 / 0.894 (box +x face), organic-occluded 0.805 / 0.778 ->
                                           # 0.808 / 0.780, outside-fov 0.657 / 0.612 -> 0.641 / 0.596 (the column's
-                                          # -x face, eroded, moves further in): opt-in; 0: off
+                                          # -x face, eroded, moves further in): opt-in (with
+                                          # mesh_hull_flat_approach false); 0: off
+    mesh_hull_flat_approach: bool = True  # the flat patches' vertices (as mesh_hull_flat_centre_voxels') move by the
+                                          # light's gap: to the middle between the lit segments' nearest approach d to
+                                          # the face in the carved voxel beyond it and the layer's inner side,
+                                          # (1 - d) / 2 voxel (0 where no lit segment entered that voxel; recon/
+                                          # hull_flat.py): a face the light eroded barely moves. Default since session
+                                          # 15, six scenes F@2cm / hidden R / spurious: dark-room 0.909 / 0.842 / 0.38 %
+                                          # -> 0.924 / 0.882 / 0.29 % (the box's +x face), organic-occluded 0.805 /
+                                          # 0.778 -> 0.808 / 0.781, outside-fov 0.657 / 0.612 -> 0.658 / 0.613, the
+                                          # others within 0.001 (curved-wall L1 0.0355 -> 0.0359); +0.3-1.4 s of export
+                                          # (docs/reconstruction.md); false: off. Not with mesh_hull_flat_centre_voxels
     mesh_hull_flat_patch_faces: int = 15  # ... the patch size (coplanar faces of hull voxels towards carved space)
     mesh_hull_shrink_graze_samples: int = 4  # ... except hull voxels a shadowed segment grazes (crosses at most this
                                           # many marching samples of the hull: the shadow's edge); 0: none excepted

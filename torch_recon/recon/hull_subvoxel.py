@@ -18,6 +18,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from .data import lit_path_tolerance, unexplained_lit
 from .fields import next_to
 from .hull_trim import sole_blockers
 from .sampler import ray_box
@@ -56,16 +57,26 @@ def camera_free(model, box) -> torch.Tensor:
     return (count > 0).reshape(box.shape)
 
 
+def carving_segments(model, lit: bool):
+    """`pair_segments` of the carving pixels' lit (`lit`) or shadowed pairs, as the start field's labelling marched
+    them (`evidence_grid`: its offset; a lit pair whose path disagrees with its pixel from its own range)."""
+    data, fc, box = model.data, model.fc, model.grid.box
+    off = max(model.offset_for(box.voxel), fc.surface_margin_voxels * box.voxel)     # as evidence_grid's
+    on_sub = carving_pixel_mask(data, box, fc.carve_spacing_voxels)[data.pair_pixel]
+    if not lit:
+        return pair_segments(data, data.shadowed & on_sub, off)
+    tol = lit_path_tolerance(data, box.voxel, fc.lit_path_tolerance_voxels)
+    return pair_segments(data, data.lit & on_sub, off, unexplained_lit(data, tol) if tol > 0 else None)
+
+
 def shrinkable_hull(model, start_raw: torch.Tensor, evidence: VoxelEvidence, graze_samples: int, occupied=None,
                     silhouettes: bool = True) -> torch.Tensor:
     """The hull voxels (nx, ny, nz) bool whose mesh vertices may move inward: `hull_voxels` of the start field with
     the start's own carving (its `evidence`), still `occupied` in the mesh field (not lowered by training or the hull
     inset), less the voxels a shadowed segment grazes (crossing at most `graze_samples` marching samples of the hull:
     `hull_trim.sole_blockers`, the shadow's edge) and, with `silhouettes`, the voxels next to camera-free ones."""
-    data, fc, box = model.data, model.fc, model.grid.box
+    fc, box = model.fc, model.grid.box
     step = fc.step_voxels * box.voxel
-    off = max(model.offset_for(box.voxel), fc.surface_margin_voxels * box.voxel)     # as evidence_grid's
-    on_sub = carving_pixel_mask(data, box, fc.carve_spacing_voxels)[data.pair_pixel]
     keep = None if model.thin_parts is None else model.thin_parts[0, 0].permute(2, 1, 0)
     lit = evidence.lit_crossed
     start_raw = start_raw.to(lit.device)
@@ -75,7 +86,7 @@ def shrinkable_hull(model, start_raw: torch.Tensor, evidence: VoxelEvidence, gra
         hull &= ~next_to(camera_free(model, box).to(hull.device))
     if graze_samples > 0:
         solid = (start_raw > fc.raw_free + 1e-3).reshape(-1)
-        edge = sole_blockers(box, solid, pair_segments(data, data.shadowed & on_sub, off), step, max_samples=graze_samples)
+        edge = sole_blockers(box, solid, carving_segments(model, lit=False), step, max_samples=graze_samples)
         hull &= ~edge.reshape(box.shape)
     return hull
 

@@ -359,11 +359,9 @@ class FastModel(ReconstructionModel):
                                   vol >= level + 0.5 * (float(vol.max()) - level))   # saturated: level + half
         out = InwardSmoothing(movable.cpu().numpy(), self.fc.mesh_hull_shrink_voxels * self.grid.box.voxel,
                               SHRINK_ITERATIONS)
-        if self.fc.mesh_hull_flat_centre_voxels > 0:     # flat patches first move inward (hull_flat.py)
-            from .hull_flat import flat_patch_voxels
-            free = (self._start_raw <= self.fc.raw_free + 1e-3).cpu().numpy()
-            out.flat_voxels = flat_patch_voxels(out.movable, free, self.fc.mesh_hull_flat_patch_faces)
-            out.flat_offset_m = self.fc.mesh_hull_flat_centre_voxels * self.grid.box.voxel
+        if self.fc.mesh_hull_flat_centre_voxels > 0 or self.fc.mesh_hull_flat_approach:     # hull_flat.py
+            from .hull_flat import flat_patches_inward
+            flat_patches_inward(self, out)
         return out
 
     def params_finite(self) -> bool:

@@ -14,11 +14,12 @@ from .fields import GridBox
 
 
 def marching_cells(box: GridBox, origins, dirs, near, far, step, chunk_samples: int = 1 << 20,
-                    core: float = 0.5):
+                    core: float = 0.5, positions: bool = False):
     """The voxels of the fixed-step marching samples (interval midpoints, as `marching_intervals`) of each
     segment, chunk by chunk: yields (rays, flat, keep): the segments' indices (R,), the flat x-major voxel
     index of every sample (R, n; float, arbitrary where not counted) and whether it counts (inside the
-    box, non-empty interval, within `core` voxel of the voxel centre on every axis).
+    box, non-empty interval, within `core` voxel of the voxel centre on every axis). positions: the tuples
+    end with the samples' place inside their voxel too, (R, n, 3) in [0, 1) voxels from its low corner.
 
     Segments are taken longest first so that a chunk pads its rays only to its own longest one, and
     the axes are done one at a time on contiguous arrays: every sample and voxel is the same as with
@@ -42,7 +43,7 @@ def marching_cells(box: GridBox, origins, dirs, near, far, step, chunk_samples: 
         keep = t1 > t0
         mid = 0.5 * (t0 + t1)
         o, d = origins[rays], dirs[rays]
-        flat = None
+        flat, inside = None, []
         for axis, (size, stride) in enumerate(((nx, 1), (ny, ny), (nz, nz))):
             q = d[:, axis, None] * mid           # the sample's coordinate in voxel units
             q = q.add_(o[:, axis, None]).sub_(box.bbox_min[axis]).div_(box.voxel)
@@ -50,10 +51,12 @@ def marching_cells(box: GridBox, origins, dirs, near, far, step, chunk_samples: 
             keep &= (f >= 0) & (f < size)
             if core < 0.5:
                 keep &= (q - f - 0.5).abs() <= core
+            if positions:
+                inside.append(q - f)
             if wide:
                 f = f.double()
             flat = f if flat is None else flat.mul_(stride).add_(f)
-        yield rays, flat, keep
+        yield (rays, flat, keep, torch.stack(inside, -1)) if positions else (rays, flat, keep)
 
 
 def accumulate_crossings(box: GridBox, origins, dirs, near, far, step, counts, chunk_samples=1 << 20, core: float = 0.5):

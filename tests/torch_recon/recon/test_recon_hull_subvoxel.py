@@ -101,7 +101,8 @@ def test_fast_model_moves_only_the_hidden_hull_and_only_when_asked():
 def test_the_export_reads_the_start_fields_lit_crossings_back_and_marches_no_lit_segment(monkeypatch):
     """Session 14 (issue 11): the start field's `VoxelEvidence` carries the voxels lit segments cross, the same as
     the lit march the export used to repeat (session 13's `shrinkable_hull`), and the hull's placement at export
-    marches only the camera rays (its silhouettes) and the shadowed segments (their grazes), no lit segment."""
+    marches only the camera rays (its silhouettes) and the shadowed segments (their grazes), no lit segment (this
+    box's hull has no flat patch: `fast.mesh_hull_flat_approach` marches the lit segments only near those)."""
     import torch_recon.recon.hull_trim as hull_trim
     import torch_recon.recon.segment_crossings as crossings
     from tests.support.recon_fixtures import box_floor_measurements
