@@ -155,6 +155,7 @@ class FitConfig:
                                            ("mesh_lone_inset_voxels", 0, 0.45, "voxels", " (0: off)"),
                                            ("mesh_sheet_max_voxels", 1, 4, "voxels", ""),
                                            ("mesh_sheet_min_in_plane", 1, 8, "a count", ""),
+                                           ("explain_min_plane_neighbours", 0, 8, "a count", " (0: off)"),
                                            ("mesh_hull_inset_max_voxels", 0, 8, "voxels", " (0: any thickness)"),
                                            ("mesh_hull_shrink_voxels", 0, 0.5, "voxels", " (0: off)"),
                                            ("mesh_hull_flat_centre_voxels", 0, 0.5, "voxels", " (0: off)"),

@@ -77,6 +77,13 @@ class FastConfig:
                                       # 0.881: cover 0.793 / 0.719 (the shade's lumps go, P@5cm 0.89 -> 0.98, and most
                                       # of its walls: one blocker per shadow), near_cover 0.822 / 0.862: opt-in
     explain_cover_lit_power: float = 0.5  # 'cover' / 'near_cover': how much a voxel's lit crossings count against it
+    explain_min_plane_neighbours: int = 0  # > 0: a restored blocker with fewer not-free voxels among the 8 around it
+                                      # in every axis plane is carved again (a speck in lit space, not on a wall's patch
+                                      # or a leg's column: shadow_blockers.restored_specks). Session 15, 2: thin-structures
+                                      # start field F@2cm / hidden R 0.815 / 0.881 -> 0.818 / 0.877, trained 0.838 / 0.866 ->
+                                      # 0.837 / 0.863 (the specks it drops are mostly islands the mesh cleanup drops anyway;
+                                      # the shade's lumps are patches), dark-room hidden R 0.842 -> 0.836; 3 breaks the
+                                      # table's restored legs: opt-in; 0: off
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
     lit_path_tolerance_voxels: float = 1.0  # > 0: a lit pair whose measured path is farther than this (voxels; at
                                       # least half a time bin) from the path through its pixel's visible point x got

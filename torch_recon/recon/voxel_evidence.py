@@ -22,7 +22,7 @@ from .data import RayData, lit_path_tolerance, pixel_angle, unexplained_lit
 from .fields import GridBox
 from .sampler import ray_box
 from .segment_crossings import accumulate_crossings, marching_cells, pair_segments, segment_counts, spot_crossings
-from .shadow_blockers import blocker_weight
+from .shadow_blockers import blocker_weight, restored_specks
 from .thin_parts import thin_part_voxels
 
 #: evidence label of a carved voxel put back because a shadowed segment needs a blocker there
@@ -49,7 +49,8 @@ class VoxelEvidence:
 
 def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count, origins, dirs, near, far, step,
                     restorable=(3,), chunk_samples: int = 1 << 20, score=None, lead: float = 0.0,
-                    weight=None, cover_lit_power: float | None = None, near_cover: bool = False) -> int:
+                    weight=None, cover_lit_power: float | None = None, near_cover: bool = False,
+                    min_plane_neighbours: int = 0) -> int:
     """Make every shadowed segment blocked (in place on the flat `label`): a shadowed segment whose voxels
     were all carved free gets back the carved voxel along it with the most shadowed and fewest free
     crossings (shadow / (lit + 1)). Carving through whole voxels takes thin parts
@@ -62,7 +63,9 @@ def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count,
     part. `weight` (flat, float > 0): multiplies the ranking (`shadow_blockers.blocker_weight`).
     cover_lit_power: not None: the segments' blockers are chosen together, the fewest that block them all
     (`shadow_cover.greedy_cover`; `score` unused); with `near_cover` each segment's best-scored voxel at or next
-    to one of those (`shadow_cover.best_near_cover`). Returns the number of voxels restored."""
+    to one of those (`shadow_cover.best_near_cover`). min_plane_neighbours > 0: a restored voxel with fewer not-free
+    voxels among the 8 around it in every axis plane is carved again (`shadow_blockers.restored_specks`).
+    Returns the number of voxels restored."""
     if origins.shape[0] == 0:
         return 0
     if score is None:
@@ -94,7 +97,12 @@ def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count,
             picked = best_near_cover(seg_, vox_, score, picked, box.shape)
     else:
         picked = torch.unique(torch.cat(picked))
+    was = label[picked].clone()
     label[picked] = RESTORED
+    if min_plane_neighbours > 0:
+        speck = restored_specks(label.reshape(box.shape), min_plane_neighbours).reshape(-1)[picked]
+        label[picked[speck]] = was[speck]
+        return int((~speck).sum())
     return int(picked.numel())
 
 
@@ -132,7 +140,8 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
                   nearest_surface: bool = False, seen_free=None, thin_part_edges: bool = True,
                   thin_part_centre: str = "off", explain_lead_voxels: float = 0.0, thin_points=None,
                   lit_path_tolerance_m: float = 0.0, explain_neighbour_power: float = 0.0,
-                  explain_cover_lit_power: float | None = None, explain_near_cover: bool = False):
+                  explain_cover_lit_power: float | None = None, explain_near_cover: bool = False,
+                  explain_min_plane_neighbours: int = 0):
     """`VoxelEvidence`: per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
     blocker of a shadowed segment (with `explain_shadow_rays`), 6 a part under a pixel wide (with
     `nearest_surface`: `thin_part_points`), and the voxels lit segments cross; and the count of shadowed secondary
@@ -143,7 +152,8 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     lit_path_tolerance_m > 0: a lit pair whose path disagrees with its pixel's visible point by more carves from
     where its own path puts the surface on the pixel ray (`unexplained_lit`).
     explain_neighbour_power > 0: a restored blocker is looked for next to what stayed occupied (`blocker_weight`).
-    explain_cover_lit_power: not None: the blockers are chosen together (`shadow_cover.greedy_cover`)."""
+    explain_cover_lit_power: not None: the blockers are chosen together (`shadow_cover.greedy_cover`).
+    explain_min_plane_neighbours > 0: restored specks are carved again (`shadow_blockers.restored_specks`)."""
     dev = data.pixel_dirs.device
     n = int(np.prod(box.shape))
     step = step_voxels * box.voxel
@@ -201,10 +211,11 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
         if explain_camera_free:     # a part thinner than a pixel: the pixel ray saw past it
             explain_shadows(box, label, lit_count + cam_free, shadow_count, *seg, step, restorable=(2, 3),
                             score=score, lead=lead, weight=weight, cover_lit_power=explain_cover_lit_power,
-                            near_cover=explain_near_cover)
+                            near_cover=explain_near_cover, min_plane_neighbours=explain_min_plane_neighbours)
         else:
             explain_shadows(box, label, lit_count, shadow_count, *seg, step, score=score, lead=lead, weight=weight,
-                            cover_lit_power=explain_cover_lit_power, near_cover=explain_near_cover)
+                            cover_lit_power=explain_cover_lit_power, near_cover=explain_near_cover,
+                            min_plane_neighbours=explain_min_plane_neighbours)
     return VoxelEvidence(label.reshape(box.shape), (lit_count > 0).reshape(box.shape)), shadow_count.reshape(box.shape)
 
 
@@ -223,5 +234,6 @@ def configured_evidence_grid(data: RayData, box: GridBox, cfg, secondary_offset_
                          lit_path_tolerance_m=lit_path_tolerance(data, box.voxel, cfg.lit_path_tolerance_voxels),
                          explain_neighbour_power=cfg.explain_neighbour_power,
                          explain_cover_lit_power=cfg.explain_cover_lit_power if cfg.explain_pick != "segment" else None,
-                         explain_near_cover=cfg.explain_pick == "near_cover")
+                         explain_near_cover=cfg.explain_pick == "near_cover",
+                         explain_min_plane_neighbours=cfg.explain_min_plane_neighbours)
 
