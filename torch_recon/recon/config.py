@@ -167,6 +167,9 @@ class FitConfig:
             raise SettingsError("fast.mesh_hull_inset_min_voxels",
                                 f"expected voxels in [1, fast.mesh_hull_inset_max_voxels], got "
                                 f"{self.fast.mesh_hull_inset_min_voxels}")
+        if not (isinstance(self.fast.mesh_hull_taubin_iterations, int) and 0 <= self.fast.mesh_hull_taubin_iterations <= 200):
+            raise SettingsError("fast.mesh_hull_taubin_iterations",
+                                f"expected an integer in [0, 200] (0: off), got {self.fast.mesh_hull_taubin_iterations}")
         if not (isinstance(self.fast.mesh_keep_restored_voxels, int) and self.fast.mesh_keep_restored_voxels >= 0):
             raise SettingsError("fast.mesh_keep_restored_voxels",
                                 f"expected a voxel count >= 0 (0: off), got {self.fast.mesh_keep_restored_voxels}")

@@ -224,6 +224,11 @@ class FastConfig:
                                           # outside-fov 0.643 / 0.602 -> 0.657 / 0.612 (spurious 3.59 -> 3.39 %), the
                                           # other four within 0.001; without the silhouette rule organic-occluded's
                                           # occluder lost 0.06 hidden R (docs/reconstruction.md)
+    mesh_hull_taubin_iterations: int = 0  # > 0: before the inward smoothing, this many Taubin passes of the same hull
+                                      # vertices only (both ways, volume-keeping; a shape prior: the hidden hull's
+                                      # one-voxel lumps and dents come from whole-voxel carving); 0: off. Session 15,
+                                      # 10: organic-occluded blob F@2cm 0.673 -> 0.676, blob normal consistency 0.878
+                                      # -> 0.885; the six scenes' F / hidden R within 0.001 of main (opt-in)
     mesh_keep_restored_voxels: int = 0  # > 0: the mesh's island cleanup also keeps a small island touching a restored
                                       # blocker (voxel_evidence.explain_shadows, label 4) of a connected run (26-neighbours) of at
                                       # least this many restored voxels: a leg's restored one-voxel column breaks where

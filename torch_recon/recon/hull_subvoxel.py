@@ -69,6 +69,15 @@ def carving_segments(model, lit: bool):
     return pair_segments(data, data.lit & on_sub, off, unexplained_lit(data, tol) if tol > 0 else None)
 
 
+def unmeasured_hull(model, start_raw: torch.Tensor, evidence: VoxelEvidence, occupied=None) -> torch.Tensor:
+    """`hull_voxels` of the start field with its own carving (`evidence`), less the model's thin parts, still
+    `occupied` in the mesh field: the hull no measured surface, lit segment or thin part places (nx, ny, nz) bool."""
+    keep = None if model.thin_parts is None else model.thin_parts[0, 0].permute(2, 1, 0)
+    lit = evidence.lit_crossed
+    hull = hull_voxels(start_raw.to(lit.device), model.fc.raw_free, model.fc.raw_occupied, lit, keep)
+    return hull if occupied is None else hull & occupied.to(hull.device)
+
+
 def shrinkable_hull(model, start_raw: torch.Tensor, evidence: VoxelEvidence, graze_samples: int, occupied=None,
                     silhouettes: bool = True) -> torch.Tensor:
     """The hull voxels (nx, ny, nz) bool whose mesh vertices may move inward: `hull_voxels` of the start field with
@@ -77,11 +86,8 @@ def shrinkable_hull(model, start_raw: torch.Tensor, evidence: VoxelEvidence, gra
     `hull_trim.sole_blockers`, the shadow's edge) and, with `silhouettes`, the voxels next to camera-free ones."""
     fc, box = model.fc, model.grid.box
     step = fc.step_voxels * box.voxel
-    keep = None if model.thin_parts is None else model.thin_parts[0, 0].permute(2, 1, 0)
-    lit = evidence.lit_crossed
-    start_raw = start_raw.to(lit.device)
-    hull = hull_voxels(start_raw, fc.raw_free, fc.raw_occupied, lit, keep)
-    hull = hull if occupied is None else hull & occupied.to(hull.device)
+    start_raw = start_raw.to(evidence.lit_crossed.device)
+    hull = unmeasured_hull(model, start_raw, evidence, occupied)
     if silhouettes:     # a face the sensor saw past is its silhouette, placed to a pixel
         hull &= ~next_to(camera_free(model, box).to(hull.device))
     if graze_samples > 0:

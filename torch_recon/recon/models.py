@@ -15,7 +15,7 @@ from ..mesh_export import InwardSmoothing
 from .config import FitConfig
 from .data import RayData, lit_path_tolerance, unexplained_lit, without_lit
 from .fields import DensityGrid, GridBox
-from .hull_subvoxel import SHRINK_ITERATIONS, binary_boundary_inset, shrinkable_hull
+from .hull_subvoxel import SHRINK_ITERATIONS, binary_boundary_inset, shrinkable_hull, unmeasured_hull
 from .init import grid_bbox, in_view, initial_grid
 from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total_loss
 from .renderer import render_pruned, secondary_rays
@@ -355,10 +355,12 @@ class FastModel(ReconstructionModel):
         if self._start_raw is None or tuple(self._start_raw.shape) != tuple(self.grid.box.shape):
             self._initial(box=self.grid.box)        # (sets the evidence of this grid too)
         vol = torch.as_tensor(volume)
-        movable = shrinkable_hull(self, self._start_raw, self.evidence, self.fc.mesh_hull_shrink_graze_samples,
-                                  vol >= level + 0.5 * (float(vol.max()) - level))   # saturated: level + half
+        saturated = vol >= level + 0.5 * (float(vol.max()) - level)
+        movable = shrinkable_hull(self, self._start_raw, self.evidence, self.fc.mesh_hull_shrink_graze_samples, saturated)
         out = InwardSmoothing(movable.cpu().numpy(), self.fc.mesh_hull_shrink_voxels * self.grid.box.voxel,
-                              SHRINK_ITERATIONS)
+                              SHRINK_ITERATIONS, taubin_iterations=self.fc.mesh_hull_taubin_iterations)
+        if self.fc.mesh_hull_taubin_iterations > 0:     # the shape prior also at shadow edges and silhouettes
+            out.taubin_movable = unmeasured_hull(self, self._start_raw, self.evidence, saturated).cpu().numpy()
         if self.fc.mesh_hull_flat_centre_voxels > 0 or self.fc.mesh_hull_flat_approach:     # hull_flat.py
             from .hull_flat import flat_patches_inward
             flat_patches_inward(self, out)

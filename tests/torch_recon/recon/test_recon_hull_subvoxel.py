@@ -138,3 +138,55 @@ def test_the_export_reads_the_start_fields_lit_crossings_back_and_marches_no_lit
     cameras = int(torch.isfinite(data.visible_depth).sum())
     shadowed = crossings.pair_segments(data, data.shadowed & on_sub, off)[0].shape[0]
     assert movable.any() and sorted(marched) == sorted([cameras, shadowed]), (marched, cameras, shadowed)
+
+
+def test_hull_taubin_smooths_a_lump_both_ways_and_pins_the_rest():
+    """Session 15 (issue 11), `fast.mesh_hull_taubin_iterations`: a one-voxel lump on the cube's +x face is flattened
+    by Taubin passes of the movable vertices alone (the cube's -x half, not movable, stays where it was)."""
+    vol = _cube_volume()
+    vol[9, 5:7, 5:7] = 1.0                          # a lump on the +x face
+    kw = dict(min_island_fraction=0)
+    plain, _ = mesh_from_volume(vol, (0, 0, 0), (11, 11, 11), 0.5, **kw)
+    movable = np.zeros(vol.shape, bool)
+    movable[6:] = True
+    off = InwardSmoothing(movable, 0.0, 0)
+    same, _ = mesh_from_volume(vol, (0, 0, 0), (11, 11, 11), 0.5, inward=off, **kw)
+    assert np.allclose(plain.vertices, same.vertices)                    # 0 passes: the mesh as before
+    smooth, _ = mesh_from_volume(vol, (0, 0, 0), (11, 11, 11), 0.5, inward=InwardSmoothing(movable, 0.0, 0,
+                                 taubin_iterations=20), **kw)
+    assert np.all(np.isfinite(smooth.vertices)) and len(smooth.vertices) == len(plain.vertices)
+    left = plain.vertices[:, 0] < 4.0
+    assert np.allclose(smooth.vertices[left], plain.vertices[left])     # pinned
+    tip = plain.vertices[:, 0].argmax()
+    assert plain.vertices[tip, 0] - smooth.vertices[tip, 0] > 0.1       # the lump's top comes down
+    # taubin_movable, when given, picks the vertices in place of `movable`
+    none, _ = mesh_from_volume(vol, (0, 0, 0), (11, 11, 11), 0.5, inward=InwardSmoothing(
+        movable, 0.0, 0, taubin_iterations=20, taubin_movable=np.zeros(vol.shape, bool)), **kw)
+    assert np.allclose(plain.vertices, none.vertices)
+
+
+@pytest.mark.parametrize("bad", ["-1", "201", "1.5"])
+def test_hull_taubin_setting_refused_on_one_line(bad):
+    with pytest.raises(SettingsError, match="fast.mesh_hull_taubin_iterations"):
+        override(FitConfig(mode="fast"), [f"fast.mesh_hull_taubin_iterations={bad}"])
+    assert override(FitConfig(mode="fast"), ["fast.mesh_hull_taubin_iterations=10"]).fast.mesh_hull_taubin_iterations == 10
+
+
+def test_fast_model_hands_the_unmeasured_hull_to_the_taubin_passes_only_when_asked():
+    from tests.support.recon_fixtures import box_floor_measurements
+    from tests.torch_recon.recon.test_recon_fit import small_config
+    from tests.torch_recon.recon.test_recon_freeze import _meta
+    from torch_recon.recon.data import build_ray_data
+    from torch_recon.recon.models import FastModel
+
+    meas = box_floor_measurements(32)
+    cfg = small_config(steps=1)
+    assert cfg.fast.mesh_hull_taubin_iterations == 0
+    model = FastModel(build_ray_data(meas), cfg, _meta(meas))
+    vol, level = model.surface_volume()
+    inward = model.mesh_inward(vol, level)
+    assert inward.taubin_iterations == 0 and inward.taubin_movable is None
+    cfg.fast.mesh_hull_taubin_iterations = 10
+    inward = model.mesh_inward(vol, level)
+    assert inward.taubin_iterations == 10
+    assert (inward.taubin_movable >= inward.movable).all() and inward.taubin_movable.sum() >= inward.movable.sum() > 0
