@@ -76,8 +76,6 @@ class InwardSmoothing:
     flat_offset_m: float = 0.0
     flat_face_offsets_m: np.ndarray | None = None  # optional (volume shape + (6,)) float: per flat voxel and face
                                       # (-x, +x, -y, +y, -z, +z), the offset of that face's vertices instead
-    taubin_iterations: int = 0        # Taubin passes first, of the vertices of `taubin_movable` voxels alone
-    taubin_movable: np.ndarray | None = None  # bool volume (None: `movable`)
 
 
 def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: bool = True,
@@ -134,13 +132,6 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
         inside = mesh.vertices - 0.5 * spacing * mesh.vertex_normals
         g = np.clip(np.rint((inside - lo) / spacing).astype(np.int64), 0, np.array(np.shape(volume)) - 1)
         mov = np.asarray(inward.movable, bool)[g[:, 0], g[:, 1], g[:, 2]]
-        tmov = mov if inward.taubin_movable is None else np.asarray(inward.taubin_movable, bool)[g[:, 0], g[:, 1], g[:, 2]]
-        if inward.taubin_iterations > 0 and tmov.any():
-            # the hull's one-voxel lumps and dents (whole-voxel carving by sparse segments) are smoothed both ways;
-            # Taubin keeps the volume, every other vertex stays pinned
-            lap = trimesh.smoothing.laplacian_calculation(mesh, pinned_vertices=np.flatnonzero(~tmov))
-            trimesh.smoothing.filter_taubin(mesh, lamb=0.5, nu=0.53, iterations=int(inward.taubin_iterations),
-                                            laplacian_operator=lap)
         flat = None
         if inward.flat_voxels is not None:     # those vertices first move inward along the normal
             flat = (mov & np.asarray(inward.flat_voxels, bool)[g[:, 0], g[:, 1], g[:, 2]], float(inward.flat_offset_m))
