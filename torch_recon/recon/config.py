@@ -150,7 +150,6 @@ class FitConfig:
                                            ("mesh_sheet_min_in_plane", 1, 8, "a count", ""),
                                            ("mesh_hull_inset_max_voxels", 0, 8, "voxels", " (0: any thickness)"),
                                            ("mesh_hull_shrink_voxels", 0, 0.5, "voxels", " (0: off)"),
-                                           ("mesh_hull_flat_centre_voxels", 0, 0.5, "voxels", " (0: off)"),
                                            ("mesh_level_shift_voxels", -0.5, 0.5, "voxels", " (0: off)"),):
             value = getattr(self.fast, key)
             if not low <= value <= high:     # NaN fails too
@@ -162,10 +161,6 @@ class FitConfig:
         if not (isinstance(self.fast.mesh_keep_restored_voxels, int) and self.fast.mesh_keep_restored_voxels >= 0):
             raise SettingsError("fast.mesh_keep_restored_voxels",
                                 f"expected a voxel count >= 0 (0: off), got {self.fast.mesh_keep_restored_voxels}")
-        if self.fast.mesh_hull_flat_approach and self.fast.mesh_hull_flat_centre_voxels > 0:
-            raise SettingsError("fast.mesh_hull_flat_approach", "moves the flat hull faces by the light's gap: not "
-                                f"with fast.mesh_hull_flat_centre_voxels {self.fast.mesh_hull_flat_centre_voxels} "
-                                "(set fast.mesh_hull_flat_approach=false for the fixed offset)")
         if not (isinstance(self.fast.mesh_hull_flat_patch_faces, int) and self.fast.mesh_hull_flat_patch_faces >= 1):
             raise SettingsError("fast.mesh_hull_flat_patch_faces",
                                 f"expected a face count >= 1, got {self.fast.mesh_hull_flat_patch_faces}")

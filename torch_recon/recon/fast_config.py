@@ -22,7 +22,9 @@ class FastConfig:
                         "explain_cover_lit_power": f"{_S15}, 'Blockers chosen together')",
                         "explain_min_plane_neighbours": f"{_S15}, 'restored specks carved again')",
                         "mesh_lone_inset_voxels": f"{_S15}, 'Thin sheets inside their voxel')",
-                        "mesh_hull_taubin_iterations": f"{_S15}, 'organic-occluded's blob')"}
+                        "mesh_hull_taubin_iterations": f"{_S15}, 'organic-occluded's blob')",
+                        "mesh_hull_flat_centre_voxels": f"{_S15}, 'flat hull faces to their layer's centre': "
+                                                        "fast.mesh_hull_flat_approach moves those faces by the light's gap)"}
 
     coarse_resolution: int = 64       # voxels along the longest bbox side, first level
     resolution: int = 128             # final level (coarse to fine: the coarse result is upsampled)
@@ -222,18 +224,10 @@ class FastConfig:
                                       # curved-wall F@2cm 0.941 -> 0.935; with explain_neighbour_power 1 it gives the
                                       # table's leg back (table hidden R 0.857 -> 0.892) but the lamp pays: opt-in
                                       # (docs/reconstruction.md "Islands that hold restored blockers"); 0: off
-    mesh_hull_flat_centre_voxels: float = 0.0  # > 0: the shrinkable hull's vertices on a flat axis-aligned patch of at
-                                          # least mesh_hull_flat_patch_faces voxel faces move this far inward along
-                                          # their normal first (recon/hull_flat.py): no light bounds such a face, the
-                                          # true plane lies anywhere in the outer voxel layer, marching cubes puts it
-                                          # at the layer's outer side, and the smoothing leaves flat runs. Session 14,
-                                          # 0.25 (re-exports of main 1b1ffda's fits): dark-room F@2cm / hidden R 0.909 /
-                                          # 0.842 -> 0.927 / 0.894 (box +x face), organic-occluded 0.805 / 0.778 ->
-                                          # 0.808 / 0.780, outside-fov 0.657 / 0.612 -> 0.641 / 0.596 (the column's
-                                          # -x face, eroded, moves further in): opt-in (with
-                                          # mesh_hull_flat_approach false); 0: off
-    mesh_hull_flat_approach: bool = True  # the flat patches' vertices (as mesh_hull_flat_centre_voxels') move by the
-                                          # light's gap: to the middle between the lit segments' nearest approach d to
+    mesh_hull_flat_approach: bool = True  # the shrinkable hull's vertices on a flat axis-aligned patch of at least
+                                          # mesh_hull_flat_patch_faces voxel faces (no light bounds such a face: marching
+                                          # cubes puts it at its voxel layer's outer side) move inward by the light's
+                                          # gap: to the middle between the lit segments' nearest approach d to
                                           # the face in the carved voxel beyond it and the layer's inner side,
                                           # (1 - d) / 2 voxel (0 where no lit segment entered that voxel; recon/
                                           # hull_flat.py): a face the light eroded barely moves. Default since session
@@ -241,7 +235,8 @@ class FastConfig:
                                           # -> 0.924 / 0.882 / 0.29 % (the box's +x face), organic-occluded 0.805 /
                                           # 0.778 -> 0.808 / 0.781, outside-fov 0.657 / 0.612 -> 0.658 / 0.613, the
                                           # others within 0.001 (curved-wall L1 0.0355 -> 0.0359); +0.3-1.4 s of export
-                                          # (docs/reconstruction.md); false: off. Not with mesh_hull_flat_centre_voxels
+                                          # (docs/reconstruction.md); false: off. Session 14's fixed offset (0.25 voxel:
+                                          # dark-room 0.927 / 0.894 but outside-fov 0.641 / 0.596) was removed
     mesh_hull_flat_patch_faces: int = 15  # ... the patch size (coplanar faces of hull voxels towards carved space)
     mesh_hull_shrink_graze_samples: int = 4  # ... except hull voxels a shadowed segment grazes (crosses at most this
                                           # many marching samples of the hull: the shadow's edge); 0: none excepted

@@ -359,7 +359,7 @@ class FastModel(ReconstructionModel):
         movable = shrinkable_hull(self, self._start_raw, self.evidence, self.fc.mesh_hull_shrink_graze_samples, saturated)
         out = InwardSmoothing(movable.cpu().numpy(), self.fc.mesh_hull_shrink_voxels * self.grid.box.voxel,
                               SHRINK_ITERATIONS)
-        if self.fc.mesh_hull_flat_centre_voxels > 0 or self.fc.mesh_hull_flat_approach:     # hull_flat.py
+        if self.fc.mesh_hull_flat_approach:     # hull_flat.py
             from .hull_flat import flat_patches_inward
             flat_patches_inward(self, out)
         return out
