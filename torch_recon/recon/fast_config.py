@@ -23,8 +23,9 @@ class FastConfig:
                         "explain_min_plane_neighbours": f"{_S15}, 'restored specks carved again')",
                         "mesh_lone_inset_voxels": f"{_S15}, 'Thin sheets inside their voxel')",
                         "mesh_hull_taubin_iterations": f"{_S15}, 'organic-occluded's blob')",
-                        "mesh_hull_flat_centre_voxels": f"{_S15}, 'flat hull faces to their layer's centre': "
-                                                        "fast.mesh_hull_flat_approach moves those faces by the light's gap)"}
+                        "mesh_hull_flat_centre_voxels": "removed in session 15 (superseded by the default "
+                                                        "fast.mesh_hull_flat_approach, which moves those faces by the "
+                                                        "light's gap: docs/reconstruction.md)"}
 
     coarse_resolution: int = 64       # voxels along the longest bbox side, first level
     resolution: int = 128             # final level (coarse to fine: the coarse result is upsampled)
