@@ -72,12 +72,9 @@ class InwardSmoothing:
     movable: np.ndarray               # (same shape as the volume) bool: voxels whose mesh vertices may move inward
     max_move_m: float                 # no vertex moves farther than this from where the Taubin passes left it
     iterations: int                   # Laplacian steps
-    flat_voxels: np.ndarray | None = None  # optional bool volume: flat patches, first moved `flat_offset_m` inward
-    flat_offset_m: float = 0.0
-    flat_face_offsets_m: np.ndarray | None = None  # optional (volume shape + (6,)) float: per flat voxel and face
-                                      # (-x, +x, -y, +y, -z, +z), the offset of that face's vertices instead
-    taubin_iterations: int = 0        # Taubin passes first, of the vertices of `taubin_movable` voxels alone
-    taubin_movable: np.ndarray | None = None  # bool volume (None: `movable`)
+    flat_voxels: np.ndarray | None = None  # optional bool volume: flat patches, first moved inward along the normal
+    flat_face_offsets_m: np.ndarray | None = None  # ... with it, (volume shape + (6,)) float: per flat voxel and face
+                                      # (-x, +x, -y, +y, -z, +z), how far that face's vertices move
 
 
 def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: bool = True,
@@ -134,21 +131,14 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
         inside = mesh.vertices - 0.5 * spacing * mesh.vertex_normals
         g = np.clip(np.rint((inside - lo) / spacing).astype(np.int64), 0, np.array(np.shape(volume)) - 1)
         mov = np.asarray(inward.movable, bool)[g[:, 0], g[:, 1], g[:, 2]]
-        tmov = mov if inward.taubin_movable is None else np.asarray(inward.taubin_movable, bool)[g[:, 0], g[:, 1], g[:, 2]]
-        if inward.taubin_iterations > 0 and tmov.any():
-            # the hull's one-voxel lumps and dents (whole-voxel carving by sparse segments) are smoothed both ways;
-            # Taubin keeps the volume, every other vertex stays pinned
-            lap = trimesh.smoothing.laplacian_calculation(mesh, pinned_vertices=np.flatnonzero(~tmov))
-            trimesh.smoothing.filter_taubin(mesh, lamb=0.5, nu=0.53, iterations=int(inward.taubin_iterations),
-                                            laplacian_operator=lap)
         flat = None
-        if inward.flat_voxels is not None:     # those vertices first move inward along the normal
-            flat = (mov & np.asarray(inward.flat_voxels, bool)[g[:, 0], g[:, 1], g[:, 2]], float(inward.flat_offset_m))
-            if inward.flat_face_offsets_m is not None:     # by their voxel face's own offset (the normal's axis)
-                n = np.asarray(mesh.vertex_normals)
-                axis = np.abs(n).argmax(1)
-                face = 2 * axis + (n[np.arange(len(n)), axis] > 0)
-                flat = (flat[0], np.where(flat[0], inward.flat_face_offsets_m[g[:, 0], g[:, 1], g[:, 2], face], 0.0))
+        if inward.flat_voxels is not None and inward.flat_face_offsets_m is not None:
+            # those vertices first move inward along the normal, by their voxel face's own offset (the normal's axis)
+            on = mov & np.asarray(inward.flat_voxels, bool)[g[:, 0], g[:, 1], g[:, 2]]
+            n = np.asarray(mesh.vertex_normals)
+            axis = np.abs(n).argmax(1)
+            face = 2 * axis + (n[np.arange(len(n)), axis] > 0)
+            flat = (on, np.where(on, inward.flat_face_offsets_m[g[:, 0], g[:, 1], g[:, 2], face], 0.0))
         inward_smoothing(mesh, mov, float(inward.max_move_m), int(inward.iterations), flat=flat)
     removed = 0
     if min_island_fraction > 0 and len(mesh.faces):

@@ -113,12 +113,6 @@ class FitConfig:
                                                             f"{self.fast.thin_part_training!r}")
         if self.fast.explain_score not in ("ratio", "spots"):
             raise SettingsError("fast.explain_score", f"expected 'ratio' or 'spots', got {self.fast.explain_score!r}")
-        if self.fast.explain_pick not in ("segment", "cover", "near_cover"):
-            raise SettingsError("fast.explain_pick",
-                                f"expected 'segment', 'cover' or 'near_cover', got {self.fast.explain_pick!r}")
-        if not (math.isfinite(self.fast.explain_cover_lit_power) and self.fast.explain_cover_lit_power >= 0):
-            raise SettingsError("fast.explain_cover_lit_power",
-                                f"expected a power >= 0, got {self.fast.explain_cover_lit_power}")
         if not (math.isfinite(self.fast.explain_neighbour_power) and self.fast.explain_neighbour_power >= 0):
             raise SettingsError("fast.explain_neighbour_power",
                                 f"expected a power >= 0 (0: off), got {self.fast.explain_neighbour_power}")
@@ -152,13 +146,10 @@ class FitConfig:
         # bounded fast.* settings: (key, low, high, unit, what 0 means) -> one line naming the key
         for key, low, high, unit, note in (("mesh_hull_inset_voxels", 0, 0.45, "voxels", " (0: off)"),
                                            ("mesh_sheet_inset_voxels", 0, 0.45, "voxels", " (0: off)"),
-                                           ("mesh_lone_inset_voxels", 0, 0.45, "voxels", " (0: off)"),
                                            ("mesh_sheet_max_voxels", 1, 4, "voxels", ""),
                                            ("mesh_sheet_min_in_plane", 1, 8, "a count", ""),
-                                           ("explain_min_plane_neighbours", 0, 8, "a count", " (0: off)"),
                                            ("mesh_hull_inset_max_voxels", 0, 8, "voxels", " (0: any thickness)"),
                                            ("mesh_hull_shrink_voxels", 0, 0.5, "voxels", " (0: off)"),
-                                           ("mesh_hull_flat_centre_voxels", 0, 0.5, "voxels", " (0: off)"),
                                            ("mesh_level_shift_voxels", -0.5, 0.5, "voxels", " (0: off)"),):
             value = getattr(self.fast, key)
             if not low <= value <= high:     # NaN fails too
@@ -167,16 +158,9 @@ class FitConfig:
             raise SettingsError("fast.mesh_hull_inset_min_voxels",
                                 f"expected voxels in [1, fast.mesh_hull_inset_max_voxels], got "
                                 f"{self.fast.mesh_hull_inset_min_voxels}")
-        if not (isinstance(self.fast.mesh_hull_taubin_iterations, int) and 0 <= self.fast.mesh_hull_taubin_iterations <= 200):
-            raise SettingsError("fast.mesh_hull_taubin_iterations",
-                                f"expected an integer in [0, 200] (0: off), got {self.fast.mesh_hull_taubin_iterations}")
         if not (isinstance(self.fast.mesh_keep_restored_voxels, int) and self.fast.mesh_keep_restored_voxels >= 0):
             raise SettingsError("fast.mesh_keep_restored_voxels",
                                 f"expected a voxel count >= 0 (0: off), got {self.fast.mesh_keep_restored_voxels}")
-        if self.fast.mesh_hull_flat_approach and self.fast.mesh_hull_flat_centre_voxels > 0:
-            raise SettingsError("fast.mesh_hull_flat_approach", "moves the flat hull faces by the light's gap: not "
-                                f"with fast.mesh_hull_flat_centre_voxels {self.fast.mesh_hull_flat_centre_voxels} "
-                                "(set fast.mesh_hull_flat_approach=false for the fixed offset)")
         if not (isinstance(self.fast.mesh_hull_flat_patch_faces, int) and self.fast.mesh_hull_flat_patch_faces >= 1):
             raise SettingsError("fast.mesh_hull_flat_patch_faces",
                                 f"expected a face count >= 1, got {self.fast.mesh_hull_flat_patch_faces}")

@@ -7,6 +7,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 
+_S15 = "removed in session 15 (measured no better on any scene: docs/reconstruction.md"
+
+
 @dataclass
 class FastConfig:
     """Explicit multi-resolution density grid."""
@@ -14,7 +17,15 @@ class FastConfig:
     #: keys older versions wrote (a saved fit.json / --config) -> what replaced them (settings.from_dict says so)
     REMOVED_SETTINGS = {"tv_weight": "replaced by fast.normal_weight (session 8: the total-variation term did nothing)",
                         "footprint_voxels": "removed in session 8 (ray-footprint carving kept no legs; docs/reconstruction.md)",
-                        "footprint_views": "removed in session 8 (ray-footprint carving kept no legs; docs/reconstruction.md)"}
+                        "footprint_views": "removed in session 8 (ray-footprint carving kept no legs; docs/reconstruction.md)",
+                        "explain_pick": f"{_S15}, 'Blockers chosen together': each segment keeps its own blocker)",
+                        "explain_cover_lit_power": f"{_S15}, 'Blockers chosen together')",
+                        "explain_min_plane_neighbours": f"{_S15}, 'restored specks carved again')",
+                        "mesh_lone_inset_voxels": f"{_S15}, 'Thin sheets inside their voxel')",
+                        "mesh_hull_taubin_iterations": f"{_S15}, 'organic-occluded's blob')",
+                        "mesh_hull_flat_centre_voxels": "removed in session 15 (superseded by the default "
+                                                        "fast.mesh_hull_flat_approach, which moves those faces by the "
+                                                        "light's gap: docs/reconstruction.md)"}
 
     coarse_resolution: int = 64       # voxels along the longest bbox side, first level
     resolution: int = 128             # final level (coarse to fine: the coarse result is upsampled)
@@ -69,21 +80,6 @@ class FastConfig:
                                       # (shadow_blockers.py). Session 13, 0.5, six scenes: F@2cm cave-chair 0.944 ->
                                       # 0.949, curved-wall 0.941 -> 0.951, outside-fov +0.004; thin-structures hidden
                                       # R 0.866 -> 0.859, dark-room 0.902 / 0.827 -> 0.895 / 0.815: opt-in; 0: off
-    explain_pick: str = "segment"     # 'segment': each shadowed segment's blocker is its own best-ranked carved voxel;
-                                      # 'cover': the blockers are chosen together, greedily the carved voxel crossed by
-                                      # the most still-unblocked segments / (lit crossings + 1) ^ explain_cover_lit_power
-                                      # (recon/shadow_cover.py); 'near_cover': each segment's best voxel at or next to a
-                                      # cover voxel. Session 14, thin-structures start field F@2cm / hidden R 0.815 /
-                                      # 0.881: cover 0.793 / 0.719 (the shade's lumps go, P@5cm 0.89 -> 0.98, and most
-                                      # of its walls: one blocker per shadow), near_cover 0.822 / 0.862: opt-in
-    explain_cover_lit_power: float = 0.5  # 'cover' / 'near_cover': how much a voxel's lit crossings count against it
-    explain_min_plane_neighbours: int = 0  # > 0: a restored blocker with fewer not-free voxels among the 8 around it
-                                      # in every axis plane is carved again (a speck in lit space, not on a wall's patch
-                                      # or a leg's column: shadow_blockers.restored_specks). Session 15, 2: thin-structures
-                                      # start field F@2cm / hidden R 0.815 / 0.881 -> 0.818 / 0.877, trained 0.838 / 0.866 ->
-                                      # 0.837 / 0.863 (the specks it drops are mostly islands the mesh cleanup drops anyway;
-                                      # the shade's lumps are patches), dark-room hidden R 0.842 -> 0.836; 3 breaks the
-                                      # table's restored legs: opt-in; 0: off
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
     lit_path_tolerance_voxels: float = 1.0  # > 0: a lit pair whose measured path is farther than this (voxels; at
                                       # least half a time bin) from the path through its pixel's visible point x got
@@ -212,10 +208,6 @@ class FastConfig:
                                           # mesh_hull_inset_voxels does not reach them; max 1 at 0.35: 0.843 / 0.865)
     mesh_sheet_unseen_sides: bool = False  # ... and only where neither side is space the sensor saw through (with 0.35,
                                           # max 2: thin-structures 0.847 / 0.872, cave-chair 0.942 / 0.912)
-    mesh_lone_inset_voxels: float = 0.0   # > 0: a voxel of the mesh field with no occupied 6-neighbour (a lone restored
-                                          # blocker: 57 % of thin-structures' lie beyond 3.2 cm of any surface, session 13)
-                                          # keeps a blob this far inside its voxel faces (thin_sheets.py). 0.35: thin-
-                                          # structures 0.838 / 0.866 -> 0.834 / 0.853 (the pole's top); 0: off
     mesh_hull_shrink_voxels: float = 0.5  # > 0: the mesh vertices of the hidden hull (no measured surface's ramp, thin
                                           # part, restored blocker or camera-free voxel beside them) are smoothed inward,
                                           # at most this far (recon/hull_subvoxel.py; a visual hull over-estimates its
@@ -224,11 +216,6 @@ class FastConfig:
                                           # outside-fov 0.643 / 0.602 -> 0.657 / 0.612 (spurious 3.59 -> 3.39 %), the
                                           # other four within 0.001; without the silhouette rule organic-occluded's
                                           # occluder lost 0.06 hidden R (docs/reconstruction.md)
-    mesh_hull_taubin_iterations: int = 0  # > 0: before the inward smoothing, this many Taubin passes of the same hull
-                                      # vertices only (both ways, volume-keeping; a shape prior: the hidden hull's
-                                      # one-voxel lumps and dents come from whole-voxel carving); 0: off. Session 15,
-                                      # 10: organic-occluded blob F@2cm 0.673 -> 0.676, blob normal consistency 0.878
-                                      # -> 0.885; the six scenes' F / hidden R within 0.001 of main (opt-in)
     mesh_keep_restored_voxels: int = 0  # > 0: the mesh's island cleanup also keeps a small island touching a restored
                                       # blocker (voxel_evidence.explain_shadows, label 4) of a connected run (26-neighbours) of at
                                       # least this many restored voxels: a leg's restored one-voxel column breaks where
@@ -238,18 +225,10 @@ class FastConfig:
                                       # curved-wall F@2cm 0.941 -> 0.935; with explain_neighbour_power 1 it gives the
                                       # table's leg back (table hidden R 0.857 -> 0.892) but the lamp pays: opt-in
                                       # (docs/reconstruction.md "Islands that hold restored blockers"); 0: off
-    mesh_hull_flat_centre_voxels: float = 0.0  # > 0: the shrinkable hull's vertices on a flat axis-aligned patch of at
-                                          # least mesh_hull_flat_patch_faces voxel faces move this far inward along
-                                          # their normal first (recon/hull_flat.py): no light bounds such a face, the
-                                          # true plane lies anywhere in the outer voxel layer, marching cubes puts it
-                                          # at the layer's outer side, and the smoothing leaves flat runs. Session 14,
-                                          # 0.25 (re-exports of main 1b1ffda's fits): dark-room F@2cm / hidden R 0.909 /
-                                          # 0.842 -> 0.927 / 0.894 (box +x face), organic-occluded 0.805 / 0.778 ->
-                                          # 0.808 / 0.780, outside-fov 0.657 / 0.612 -> 0.641 / 0.596 (the column's
-                                          # -x face, eroded, moves further in): opt-in (with
-                                          # mesh_hull_flat_approach false); 0: off
-    mesh_hull_flat_approach: bool = True  # the flat patches' vertices (as mesh_hull_flat_centre_voxels') move by the
-                                          # light's gap: to the middle between the lit segments' nearest approach d to
+    mesh_hull_flat_approach: bool = True  # the shrinkable hull's vertices on a flat axis-aligned patch of at least
+                                          # mesh_hull_flat_patch_faces voxel faces (no light bounds such a face: marching
+                                          # cubes puts it at its voxel layer's outer side) move inward by the light's
+                                          # gap: to the middle between the lit segments' nearest approach d to
                                           # the face in the carved voxel beyond it and the layer's inner side,
                                           # (1 - d) / 2 voxel (0 where no lit segment entered that voxel; recon/
                                           # hull_flat.py): a face the light eroded barely moves. Default since session
@@ -257,7 +236,8 @@ class FastConfig:
                                           # -> 0.924 / 0.882 / 0.29 % (the box's +x face), organic-occluded 0.805 /
                                           # 0.778 -> 0.808 / 0.781, outside-fov 0.657 / 0.612 -> 0.658 / 0.613, the
                                           # others within 0.001 (curved-wall L1 0.0355 -> 0.0359); +0.3-1.4 s of export
-                                          # (docs/reconstruction.md); false: off. Not with mesh_hull_flat_centre_voxels
+                                          # (docs/reconstruction.md); false: off. Session 14's fixed offset (0.25 voxel:
+                                          # dark-room 0.927 / 0.894 but outside-fov 0.641 / 0.596) was removed
     mesh_hull_flat_patch_faces: int = 15  # ... the patch size (coplanar faces of hull voxels towards carved space)
     mesh_hull_shrink_graze_samples: int = 4  # ... except hull voxels a shadowed segment grazes (crosses at most this
                                           # many marching samples of the hull: the shadow's edge); 0: none excepted

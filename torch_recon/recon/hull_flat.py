@@ -1,16 +1,16 @@
-"""Flat faces of the hidden hull: the outer voxel layer's centre, not its outer side (session 14, issue 11).
+"""Flat faces of the hidden hull: inside their outer voxel layer, not at its outer side (sessions 14-15, issue 11).
 
 A flat object face that no lit segment runs along (dark-room's box +x face: the spots' light reaches it head-on or
 not at all, and the sensor does not see it) is bounded only by whole voxels: the hull keeps the voxel layer the
 face lies in, and marching cubes puts the face at that layer's outer side, 0 to 1 voxel outside the true plane
 (dark-room: 0.75 voxel, 2.4 cm, recall@2cm of that face 0.62). The inward smoothing (`fast.mesh_hull_shrink_voxels`)
 cuts staircases but leaves flat runs, so the vertices of large coplanar patches of the shrinkable hull move inward
-along their normal by `fast.mesh_hull_flat_centre_voxels` first. Small patches are the staircases of curved or
-oblique hulls, whose faces grazing light erodes (organic-occluded's blob: its true surface lies in the carved
-voxel beyond the face more often than not): they are left to the smoothing.
+along their normal first. Small patches are the staircases of curved or oblique hulls, whose faces grazing light
+erodes (organic-occluded's blob: its true surface lies in the carved voxel beyond the face more often than not):
+they are left to the smoothing.
 
-`fast.mesh_hull_flat_approach` (session 15) moves them by what the light says instead of a fixed amount: the lit
-segments came within d voxel of the face in the carved voxel beyond it (`light_approach`), so the object's plane lies
+`fast.mesh_hull_flat_approach` (session 15) moves them by what the light says (session 14's fixed quarter voxel
+moved outside-fov's eroded column face beyond 2 cm; removed in session 15): the lit segments came within d voxel of the face in the carved voxel beyond it (`light_approach`), so the object's plane lies
 between that nearest approach and the hull layer's inner side; the face goes to that gap's middle, (1 - d) / 2 voxel
 in (`flat_face_offsets`). An eroded face (the light passed close: outside-fov's column) barely moves; one no light
 came near (dark-room's box +x) goes to its layer's centre.
@@ -139,16 +139,12 @@ def flat_face_offsets(flat, free, cells, approach, voxel: float) -> np.ndarray:
 
 def flat_patches_inward(model, inward) -> None:
     """Set the flat patches of a fast model's `mesh_export.InwardSmoothing` `inward` (its `movable` hull) and how far
-    they move: `fast.mesh_hull_flat_approach` (the light's gap, marched on the start field's lit segments) or
-    `fast.mesh_hull_flat_centre_voxels`."""
+    they move (`fast.mesh_hull_flat_approach`: the light's gap, marched on the start field's lit segments)."""
     from .hull_subvoxel import carving_segments
 
     fc, box = model.fc, model.grid.box
     free = (model._start_raw <= fc.raw_free + 1e-3).cpu().numpy()
     inward.flat_voxels = flat_patch_voxels(inward.movable, free, fc.mesh_hull_flat_patch_faces)
-    if not fc.mesh_hull_flat_approach:
-        inward.flat_offset_m = fc.mesh_hull_flat_centre_voxels * box.voxel
-        return
     if not inward.flat_voxels.any():        # (cave-chair: its hull's faces are small or beside the light)
         return
     flat = torch.as_tensor(inward.flat_voxels)

@@ -15,7 +15,7 @@ from ..mesh_export import InwardSmoothing
 from .config import FitConfig
 from .data import RayData, lit_path_tolerance, unexplained_lit, without_lit
 from .fields import DensityGrid, GridBox
-from .hull_subvoxel import SHRINK_ITERATIONS, binary_boundary_inset, shrinkable_hull, unmeasured_hull
+from .hull_subvoxel import SHRINK_ITERATIONS, binary_boundary_inset, shrinkable_hull
 from .init import grid_bbox, in_view, initial_grid
 from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total_loss
 from .renderer import render_pruned, secondary_rays
@@ -339,12 +339,12 @@ class FastModel(ReconstructionModel):
         if self.fc.mesh_hull_inset_voxels > 0:
             raw = binary_boundary_inset(raw, level, half, self.fc.mesh_hull_inset_voxels,
                                         self.fc.mesh_hull_inset_max_voxels, keep, self.fc.mesh_hull_inset_min_voxels)
-        if self.fc.mesh_sheet_inset_voxels > 0 or self.fc.mesh_lone_inset_voxels > 0:     # thin_sheets.py
+        if self.fc.mesh_sheet_inset_voxels > 0:     # thin_sheets.py
             from .thin_sheets import sheet_inset
             from .hull_subvoxel import camera_free
             seen = camera_free(self, self.grid.box) if self.fc.mesh_sheet_unseen_sides else None
             raw = sheet_inset(raw, level, half, self.fc.mesh_sheet_inset_voxels, self.fc.mesh_sheet_min_in_plane, keep,
-                              self.fc.mesh_sheet_max_voxels, self.fc.mesh_lone_inset_voxels, seen)
+                              self.fc.mesh_sheet_max_voxels, seen)
         return raw.cpu().numpy(), level
 
     def mesh_inward(self, volume, level: float):
@@ -358,10 +358,8 @@ class FastModel(ReconstructionModel):
         saturated = vol >= level + 0.5 * (float(vol.max()) - level)
         movable = shrinkable_hull(self, self._start_raw, self.evidence, self.fc.mesh_hull_shrink_graze_samples, saturated)
         out = InwardSmoothing(movable.cpu().numpy(), self.fc.mesh_hull_shrink_voxels * self.grid.box.voxel,
-                              SHRINK_ITERATIONS, taubin_iterations=self.fc.mesh_hull_taubin_iterations)
-        if self.fc.mesh_hull_taubin_iterations > 0:     # the shape prior also at shadow edges and silhouettes
-            out.taubin_movable = unmeasured_hull(self, self._start_raw, self.evidence, saturated).cpu().numpy()
-        if self.fc.mesh_hull_flat_centre_voxels > 0 or self.fc.mesh_hull_flat_approach:     # hull_flat.py
+                              SHRINK_ITERATIONS)
+        if self.fc.mesh_hull_flat_approach:     # hull_flat.py
             from .hull_flat import flat_patches_inward
             flat_patches_inward(self, out)
         return out

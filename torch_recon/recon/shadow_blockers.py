@@ -31,33 +31,6 @@ def blocker_weight(label: torch.Tensor, power: float) -> torch.Tensor | None:
     return (1.0 + occupied_neighbours(label)).pow(power).reshape(-1)
 
 
-def plane_neighbours(solid: torch.Tensor) -> torch.Tensor:
-    """Per voxel (nx, ny, nz float), the most of its 8 neighbours in one axis plane (the 3 x 3 square across x, y or z
-    through it) that are `solid` (bool; outside the box: not)."""
-    s = solid.float()[None, None]
-    best = torch.zeros_like(solid, dtype=torch.float32)
-    for axis in range(3):
-        kernel = [3, 3, 3]
-        kernel[axis] = 1
-        pad = [1, 1, 1]
-        pad[axis] = 0
-        square = torch.nn.functional.avg_pool3d(s, kernel, 1, pad, count_include_pad=True)[0, 0] * 9.0
-        best = torch.maximum(best, square.round() - solid.float())
-    return best
-
-
-def restored_specks(label: torch.Tensor, min_plane: int) -> torch.Tensor:
-    """The restored blockers (nx, ny, nz bool) with fewer than `min_plane` of the 8 neighbours around them in every axis
-    plane not free (restored, uncarved, seen): a part's voxel lies on a patch or a line of it (a wall, a leg's column
-    between its seat and the floor); a voxel on neither is a speck in the lit space, most often wrong."""
-    from .voxel_evidence import RESTORED
-
-    solid = torch.ones_like(label, dtype=torch.bool)
-    for v in FREE_LABELS:
-        solid &= label != v
-    return (label == RESTORED) & (plane_neighbours(solid) < min_plane)
-
-
 def restored_runs(restored: torch.Tensor, min_voxels: int) -> torch.Tensor:
     """The restored blockers (nx, ny, nz bool) in a connected run (26-neighbours) of at least `min_voxels`: a part's
     column the shadows put back, not a lone voxel (a speck the mesh's island cleanup should still drop)."""

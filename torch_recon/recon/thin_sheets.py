@@ -51,13 +51,8 @@ def one_voxel_sheets(occupied: torch.Tensor, free: torch.Tensor, min_in_plane: i
     return sheet
 
 
-def lone_voxels(occupied: torch.Tensor) -> torch.Tensor:
-    """Occupied voxels (nx, ny, nz bool) none of whose 6 neighbours is occupied."""
-    return occupied & ~next_to(occupied)
-
-
 def sheet_inset(clipped: torch.Tensor, level: float, half: float, inset_voxels: float, min_in_plane: int = 4,
-                keep=None, max_run: int = 1, lone_inset_voxels: float = 0.0, seen=None) -> torch.Tensor:
+                keep=None, max_run: int = 1, seen=None) -> torch.Tensor:
     """`clipped` (raw density clipped to [level - half, level + half], nx, ny, nz) with the voxels of sheets up to
     `max_run` voxels thick (`one_voxel_sheets` of the voxels above the lowered value) lowered so that their crossings
     with saturated free neighbours lie `inset_voxels` inside the midpoint (as `models.binary_boundary_inset` lowers
@@ -75,9 +70,4 @@ def sheet_inset(clipped: torch.Tensor, level: float, half: float, inset_voxels: 
         lower &= ~keep.to(lower.device)
     out = clipped.clone()
     out[lower] = target
-    if lone_inset_voxels > 0:   # a lone voxel: a speck of a blocker a shadow put back, more often wrong than right
-        lone = lone_voxels(clipped > level - half + half / (0.5 + lone_inset_voxels))
-        if keep is not None:
-            lone &= ~keep.to(lone.device)
-        out[lone] = level - half + half / (0.5 + lone_inset_voxels)
     return out

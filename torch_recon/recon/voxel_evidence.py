@@ -22,7 +22,7 @@ from .data import RayData, lit_path_tolerance, pixel_angle, unexplained_lit
 from .fields import GridBox
 from .sampler import ray_box
 from .segment_crossings import accumulate_crossings, marching_cells, pair_segments, segment_counts, spot_crossings
-from .shadow_blockers import blocker_weight, restored_specks
+from .shadow_blockers import blocker_weight
 from .thin_parts import thin_part_voxels
 
 #: evidence label of a carved voxel put back because a shadowed segment needs a blocker there
@@ -49,8 +49,7 @@ class VoxelEvidence:
 
 def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count, origins, dirs, near, far, step,
                     restorable=(3,), chunk_samples: int = 1 << 20, score=None, lead: float = 0.0,
-                    weight=None, cover_lit_power: float | None = None, near_cover: bool = False,
-                    min_plane_neighbours: int = 0) -> int:
+                    weight=None) -> int:
     """Make every shadowed segment blocked (in place on the flat `label`): a shadowed segment whose voxels
     were all carved free gets back the carved voxel along it with the most shadowed and fewest free
     crossings (shadow / (lit + 1)). Carving through whole voxels takes thin parts
@@ -61,10 +60,6 @@ def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count,
     sensor is shadowed by the part itself (its own voxel and the next), inside the offset the segments
     skip next to x; without the lead the blocker lands on the first voxel past the offset, beside the
     part. `weight` (flat, float > 0): multiplies the ranking (`shadow_blockers.blocker_weight`).
-    cover_lit_power: not None: the segments' blockers are chosen together, the fewest that block them all
-    (`shadow_cover.greedy_cover`; `score` unused); with `near_cover` each segment's best-scored voxel at or next
-    to one of those (`shadow_cover.best_near_cover`). min_plane_neighbours > 0: a restored voxel with fewer not-free
-    voxels among the 8 around it in every axis plane is carved again (`shadow_blockers.restored_specks`).
     Returns the number of voxels restored."""
     if origins.shape[0] == 0:
         return 0
@@ -75,34 +70,19 @@ def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count,
     can = torch.zeros(8, dtype=torch.bool, device=label.device)
     can[list(restorable)] = True
     lead = min(max(float(lead), 0.0), float(near.min()))
-    picked, pairs = [], []
-    for rays, flat, keep in marching_cells(box, origins, dirs, near - lead, far, step, chunk_samples):
+    picked = []
+    for _, flat, keep in marching_cells(box, origins, dirs, near - lead, far, step, chunk_samples):
         flat = flat.where(keep, 0.0).long()
         lab = label[flat]
         past = torch.arange(flat.shape[1], device=flat.device)[None] * step >= lead - 1e-6
         blocked = (keep & past & (lab != 2) & (lab != 3)).any(1)
         cand = keep & can[lab.long()] & ~blocked[:, None]
-        if cover_lit_power is not None:
-            pairs.append((rays[:, None].expand_as(flat)[cand], flat[cand]))
-            continue
         sc = torch.where(cand, score[flat], torch.full_like(flat, -1, dtype=score.dtype))
         best, j = sc.max(1)
         ok = best >= 0
         picked.append(flat[ok].gather(1, j[ok, None]).squeeze(1))
-    if cover_lit_power is not None:
-        from .shadow_cover import best_near_cover, greedy_cover
-        seg_, vox_ = torch.cat([p[0] for p in pairs]), torch.cat([p[1] for p in pairs])
-        picked = greedy_cover(seg_, vox_, free_count, cover_lit_power, weight)
-        if near_cover:
-            picked = best_near_cover(seg_, vox_, score, picked, box.shape)
-    else:
-        picked = torch.unique(torch.cat(picked))
-    was = label[picked].clone()
+    picked = torch.unique(torch.cat(picked))
     label[picked] = RESTORED
-    if min_plane_neighbours > 0:
-        speck = restored_specks(label.reshape(box.shape), min_plane_neighbours).reshape(-1)[picked]
-        label[picked[speck]] = was[speck]
-        return int((~speck).sum())
     return int(picked.numel())
 
 
@@ -139,9 +119,7 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
                   explain_camera_free: bool = False, explain_score: str = "ratio", nearest_free: bool = False,
                   nearest_surface: bool = False, seen_free=None, thin_part_edges: bool = True,
                   thin_part_centre: str = "off", explain_lead_voxels: float = 0.0, thin_points=None,
-                  lit_path_tolerance_m: float = 0.0, explain_neighbour_power: float = 0.0,
-                  explain_cover_lit_power: float | None = None, explain_near_cover: bool = False,
-                  explain_min_plane_neighbours: int = 0):
+                  lit_path_tolerance_m: float = 0.0, explain_neighbour_power: float = 0.0):
     """`VoxelEvidence`: per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
     blocker of a shadowed segment (with `explain_shadow_rays`), 6 a part under a pixel wide (with
     `nearest_surface`: `thin_part_points`), and the voxels lit segments cross; and the count of shadowed secondary
@@ -151,9 +129,7 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     thin_points: `thin_parts.thin_part_cloud` of these settings when already computed.
     lit_path_tolerance_m > 0: a lit pair whose path disagrees with its pixel's visible point by more carves from
     where its own path puts the surface on the pixel ray (`unexplained_lit`).
-    explain_neighbour_power > 0: a restored blocker is looked for next to what stayed occupied (`blocker_weight`).
-    explain_cover_lit_power: not None: the blockers are chosen together (`shadow_cover.greedy_cover`).
-    explain_min_plane_neighbours > 0: restored specks are carved again (`shadow_blockers.restored_specks`)."""
+    explain_neighbour_power > 0: a restored blocker is looked for next to what stayed occupied (`blocker_weight`)."""
     dev = data.pixel_dirs.device
     n = int(np.prod(box.shape))
     step = step_voxels * box.voxel
@@ -210,12 +186,9 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
         weight = blocker_weight(label.reshape(box.shape), explain_neighbour_power)
         if explain_camera_free:     # a part thinner than a pixel: the pixel ray saw past it
             explain_shadows(box, label, lit_count + cam_free, shadow_count, *seg, step, restorable=(2, 3),
-                            score=score, lead=lead, weight=weight, cover_lit_power=explain_cover_lit_power,
-                            near_cover=explain_near_cover, min_plane_neighbours=explain_min_plane_neighbours)
+                            score=score, lead=lead, weight=weight)
         else:
-            explain_shadows(box, label, lit_count, shadow_count, *seg, step, score=score, lead=lead, weight=weight,
-                            cover_lit_power=explain_cover_lit_power, near_cover=explain_near_cover,
-                            min_plane_neighbours=explain_min_plane_neighbours)
+            explain_shadows(box, label, lit_count, shadow_count, *seg, step, score=score, lead=lead, weight=weight)
     return VoxelEvidence(label.reshape(box.shape), (lit_count > 0).reshape(box.shape)), shadow_count.reshape(box.shape)
 
 
@@ -232,8 +205,5 @@ def configured_evidence_grid(data: RayData, box: GridBox, cfg, secondary_offset_
                          thin_part_centre=cfg.thin_part_centre, explain_lead_voxels=cfg.explain_lead_voxels,
                          thin_points=thin_points,
                          lit_path_tolerance_m=lit_path_tolerance(data, box.voxel, cfg.lit_path_tolerance_voxels),
-                         explain_neighbour_power=cfg.explain_neighbour_power,
-                         explain_cover_lit_power=cfg.explain_cover_lit_power if cfg.explain_pick != "segment" else None,
-                         explain_near_cover=cfg.explain_pick == "near_cover",
-                         explain_min_plane_neighbours=cfg.explain_min_plane_neighbours)
+                         explain_neighbour_power=cfg.explain_neighbour_power)
 

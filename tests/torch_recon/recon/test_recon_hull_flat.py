@@ -1,5 +1,5 @@
-"""Flat faces of the hidden hull move inward: to their voxel layer's centre (session 14) or to the middle of the gap the
-light left (`fast.mesh_hull_flat_approach`, session 15; recon/hull_flat.py)."""
+"""Flat faces of the hidden hull move inward, to the middle of the gap the light left (`fast.mesh_hull_flat_approach`,
+session 15; recon/hull_flat.py)."""
 
 from __future__ import annotations
 
@@ -31,15 +31,17 @@ def test_flat_patches_are_the_large_coplanar_faces_only():
     assert not flat_patch_voxels(occ, free, 200).any()
 
 
-def test_the_flat_face_moves_inward_by_the_offset_where_smoothing_alone_leaves_it():
+def test_the_flat_face_moves_inward_by_its_offset_where_smoothing_alone_leaves_it():
     vol = _slab_volume()
     hull = vol > 0
     hull[4:8, 4:12, 4:12] = False                # the outer layer only
     free = vol == 0
     kw = dict(min_island_fraction=0, smooth_iterations=0)
     plain, _ = mesh_from_volume(vol, (0, 0, 0), (15, 15, 15), 0.5, inward=InwardSmoothing(hull, 0.5, 10), **kw)
+    flat_voxels = flat_patch_voxels(hull, free, 15)
+    offsets = np.where(flat_voxels[..., None], 0.25, 0.0) * np.ones(6)     # a quarter voxel on every face
     flat, _ = mesh_from_volume(vol, (0, 0, 0), (15, 15, 15), 0.5,
-                               inward=InwardSmoothing(hull, 0.5, 10, flat_patch_voxels(hull, free, 15), 0.25), **kw)
+                               inward=InwardSmoothing(hull, 0.5, 10, flat_voxels, offsets), **kw)
     mid = lambda m: m.vertices[(np.abs(m.vertices[:, 1] - 7.5) < 1.6) & (np.abs(m.vertices[:, 2] - 7.5) < 1.6)
                                & (m.vertices[:, 0] > 8)]
     assert np.all(mid(plain)[:, 0] > 8.44)                        # the smoothing leaves the flat run (about)
@@ -48,11 +50,7 @@ def test_the_flat_face_moves_inward_by_the_offset_where_smoothing_alone_leaves_i
     assert np.all(np.isfinite(flat.vertices))
 
 
-def test_flat_centre_setting_is_range_checked():
-    fixed = override(FitConfig(mode="fast"), ["fast.mesh_hull_flat_approach=false", "fast.mesh_hull_flat_centre_voxels=0.25"])
-    assert fixed.fast.mesh_hull_flat_centre_voxels == 0.25
-    with pytest.raises(SettingsError, match="fast.mesh_hull_flat_centre_voxels"):
-        override(FitConfig(mode="fast"), ["fast.mesh_hull_flat_approach=false", "fast.mesh_hull_flat_centre_voxels=0.8"])
+def test_flat_patch_size_is_range_checked():
     with pytest.raises(SettingsError, match="fast.mesh_hull_flat_patch_faces"):
         override(FitConfig(mode="fast"), ["fast.mesh_hull_flat_patch_faces=0"])
 
@@ -165,8 +163,8 @@ def test_the_hidden_flat_face_moves_to_the_lights_gap_in_a_fitted_scene():
     assert abs(back_face_offset(True)) < 0.01
 
 
-def test_flat_approach_is_the_default_and_excludes_the_fixed_offset():
+def test_flat_approach_is_the_default_and_the_removed_fixed_offset_is_refused():
     assert FitConfig(mode="fast").fast.mesh_hull_flat_approach      # the default since session 15
     assert not override(FitConfig(mode="fast"), ["fast.mesh_hull_flat_approach=false"]).fast.mesh_hull_flat_approach
-    with pytest.raises(SettingsError, match="fast.mesh_hull_flat_approach"):
-        override(FitConfig(mode="fast"), ["fast.mesh_hull_flat_centre_voxels=0.25"])
+    with pytest.raises(SettingsError, match="fast.mesh_hull_flat_centre_voxels: removed setting"):
+        override(FitConfig(mode="fast"), ["fast.mesh_hull_flat_approach=false", "fast.mesh_hull_flat_centre_voxels=0.25"])

@@ -114,32 +114,3 @@ def test_the_model_keeps_the_start_fields_restored_blockers_without_labelling_ag
 def test_a_negative_restored_run_length_is_refused():
     with pytest.raises(SettingsError, match="fast.mesh_keep_restored_voxels"):
         FitConfig.from_dict({"mode": "fast", "fast": {"mesh_keep_restored_voxels": -1}})
-
-
-def test_a_restored_speck_in_lit_space_is_carved_again_a_voxel_beside_a_column_stays():
-    """`fast.explain_min_plane_neighbours` (session 15): two shadowed segments along x, all voxels lit-carved but an
-    occupied column (5, 6, 4..6). Row y = z = 5 gets its blocker at (5, 5, 5), beside the column (3 of the 8 around it
-    in the plane across x); row y = z = 2 at (2, 2, 2), alone in lit space (a speck inside the lamp's shade): carved
-    again."""
-    from torch_recon.recon.shadow_blockers import plane_neighbours
-
-    box = GridBox([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], 10)
-    label = torch.full(box.shape, 3, dtype=torch.int8)
-    label[5, 6, 4:7] = 0
-    shadow = torch.zeros(box.shape, dtype=torch.long)
-    shadow[5, 5, 5], shadow[2, 2, 2] = 6, 6
-    seg = (torch.tensor([[0.05, 0.55, 0.55], [0.05, 0.25, 0.25]]), torch.tensor([[1.0, 0.0, 0.0], [1.0, 0.0, 0.0]]),
-           torch.tensor([0.0, 0.0]), torch.tensor([0.9, 0.9]))
-    assert float(plane_neighbours(label != 3)[5, 5, 5]) == 3.0
-    for min_plane, kept in ((0, [[2, 2, 2], [5, 5, 5]]), (2, [[5, 5, 5]])):
-        flat = label.reshape(-1).clone()
-        n = explain_shadows(box, flat, torch.zeros(1000, dtype=torch.long),
-                            shadow.reshape(-1), *seg, 0.05, min_plane_neighbours=min_plane)
-        assert n == len(kept)
-        assert torch.nonzero(flat.reshape(box.shape) == RESTORED).tolist() == kept
-        assert int((flat.reshape(box.shape) == 3).sum()) == 1000 - 3 - len(kept)    # the speck is lit-carved again
-
-
-def test_a_plane_neighbour_count_out_of_range_is_refused():
-    with pytest.raises(SettingsError, match="fast.explain_min_plane_neighbours"):
-        FitConfig.from_dict({"mode": "fast", "fast": {"explain_min_plane_neighbours": 9}})

@@ -68,6 +68,28 @@ def test_the_advised_spot_carves_the_hull_the_capture_left(left_fit, tmp_path):
     json.dumps(advice.to_json())
 
 
+def test_a_fit_saved_with_settings_since_removed_is_still_advised(left_fit, tmp_path):
+    """A fit folder written before session 15 holds fast settings removed since (measured no better: FastConfig.
+    REMOVED_SETTINGS): the advisor reads the fit's labelling settings it knows and advises as for the fit itself."""
+    import shutil
+
+    from torch_recon.recon.fast_config import FastConfig
+
+    meas, out = left_fit
+    old = tmp_path / "old-fit"
+    shutil.copytree(out, old)
+    report = json.loads((old / "fit.json").read_text())
+    report["settings"]["fast"].update({"explain_pick": "segment", "explain_cover_lit_power": 0.5,
+                                       "explain_min_plane_neighbours": 0, "mesh_lone_inset_voxels": 0.0,
+                                       "mesh_hull_taubin_iterations": 0, "mesh_hull_flat_centre_voxels": 0.0})
+    assert set(report["settings"]["fast"]) >= set(FastConfig.REMOVED_SETTINGS) - {"tv_weight", "footprint_voxels",
+                                                                                   "footprint_views"}
+    (old / "fit.json").write_text(json.dumps(report))
+    settings = AdviceSettings(add=1, candidates=40, threads=1)
+    now, then = advise_spots(None, out, settings, measurements=meas), advise_spots(None, old, settings, measurements=meas)
+    assert then.hull_voxels == now.hull_voxels > 0 and then.spot_list() == now.spot_list()
+
+
 def test_bad_input_one_clear_error(left_fit, tmp_path):
     meas, out = left_fit
     with pytest.raises(PlatolidarError, match="volume.npz: no such file"):
