@@ -14,7 +14,9 @@ Definitions (all distances point-to-triangle, metres; samples area-weighted and 
   object (nearer to it than to any other GT surface, or farther than `spurious_m` from every GT surface)
   lying within tau of the object; F@tau = 2PR/(P+R); chamfer_m = 0.5 (mean of both directions).
   spurious_fraction = share of the reconstruction's area in the region farther than `spurious_m` from any
-  GT surface.
+  GT surface. normal_consistency = mean |n_rec . n_gt| over the object's reconstruction samples within
+  `shape_band_m` of it (n_gt: the nearest object face): how lumpy the surface is where it is roughly right,
+  which the distance metrics miss (a smooth egg and a lumpy blob 1-2 cm off it score alike).
 - Scene: spurious_fraction over the whole reconstruction; objects_spurious_fraction over the union of all
   objects' regions; normal_consistency = mean |n_rec . n_gt| of nearest faces, both directions averaged;
   degenerate_faces = faces of area <= `degenerate_area_m2` (or non-finite vertices).
@@ -38,6 +40,7 @@ class ObjectMetricSettings:
     gt_samples_per_object: int = 20_000
     recon_samples_per_m2: float = 40_000.0   # reconstruction samples inside the objects' regions
     max_region_samples: int = 200_000
+    shape_band_m: float = 0.05          # per-object normal consistency: reconstruction samples this close to it
     scene_samples: int = 100_000        # whole-scene spurious fraction / normal consistency
     scene_samples_per_m2: float = 4000.0  # density of the samples that find candidate faces on whole scenes
     degenerate_area_m2: float = 1e-12
@@ -49,7 +52,7 @@ class ObjectMetricSettings:
         if not self.thresholds_m or any(not t > 0 for t in self.thresholds_m):
             raise SettingsError("object_metric_settings.thresholds_m",
                                 f"expected positive distances (m), got {self.thresholds_m}")
-        for name in ("spurious_m", "contact_m", "region_margin_m", "recon_samples_per_m2"):
+        for name in ("spurious_m", "contact_m", "region_margin_m", "recon_samples_per_m2", "shape_band_m"):
             if not getattr(self, name) > 0:
                 raise SettingsError(f"object_metric_settings.{name}", f"expected a value > 0, got {getattr(self, name)}")
 
@@ -164,7 +167,7 @@ def object_surface_metrics(recon, gt_mesh, objects, sensor=None, settings: Objec
     # the reconstruction inside the union of the objects' regions, sampled densely
     boxes = [(np.asarray(m.bounds[0]) - s.region_margin_m, np.asarray(m.bounds[1]) + s.region_margin_m)
              for _, m in objects]
-    reg_pts = np.zeros((0, 3))
+    reg_pts, reg_nrm = np.zeros((0, 3)), np.zeros((0, 3))
     rec_surf_region = None
     if not empty:
         tri = np.asarray(recon.triangles)
@@ -182,11 +185,11 @@ def object_surface_metrics(recon, gt_mesh, objects, sensor=None, settings: Objec
             sub = sub.submesh([np.flatnonzero(near)], append=True)
             n = min(sample_count(sub.area, s.recon_samples_per_m2, 2000, s.max_region_samples),
                     s.max_region_samples)
-            reg_pts, _ = trimesh.sample.sample_surface(sub, n, seed=s.seed + 3)
+            reg_pts, reg_faces = trimesh.sample.sample_surface(sub, n, seed=s.seed + 3)
             inside = np.zeros(len(reg_pts), bool)
             for lo, hi in boxes:
                 inside |= _in_box(reg_pts, lo, hi)
-            reg_pts = reg_pts[inside]
+            reg_pts, reg_nrm = reg_pts[inside], np.asarray(sub.face_normals)[reg_faces[inside]]
             rec_surf_region = Surface(sub, sample_count(sub.area, s.recon_samples_per_m2, 20_000,
                                                             2 * s.max_region_samples), s.seed + 4)
     d_reg_all = gt_all.distance(reg_pts) if len(reg_pts) else np.zeros(0)
@@ -212,12 +215,15 @@ def object_surface_metrics(recon, gt_mesh, objects, sensor=None, settings: Objec
             d_gr = np.full(len(g_pts), np.inf)
         else:
             d_gr = rec_surf_region.distance(g_pts)
-        d_po = os_.distance(p_pts) if len(p_pts) else np.zeros(0)
+        d_po, f_po = os_.distance(p_pts, return_faces=True) if len(p_pts) else (np.zeros(0), np.zeros(0, int))
         d_prest = rest_surf.distance(p_pts) if (len(p_pts) and rest_surf is not None) else np.full(len(p_pts), np.inf)
         d_pall = d_reg_all[sel]
         mine = (d_po <= d_prest) | (d_pall > s.spurious_m)
         d_mine = d_po[mine]
         res["n_recon_points"] = int(mine.sum())
+        band = mine & (d_po < s.shape_band_m)
+        res["normal_consistency"] = (float(np.nan_to_num(np.abs(np.einsum(
+            "ij,ij->i", reg_nrm[sel][band], os_.mesh.face_normals[f_po[band]]))).mean()) if band.any() else None)
         res["spurious_fraction"] = float((d_pall > s.spurious_m).mean()) if len(d_pall) else None
         res["chamfer_m"] = (float(0.5 * (d_mine.mean() + d_gr.mean()))
                             if len(d_mine) and np.isfinite(d_gr).all() else None)
@@ -261,7 +267,7 @@ def _summary(objects: dict, thresholds) -> dict:
     out = {}
     if not objects:
         return out
-    keys = ["chamfer_m", "spurious_fraction"] + [f"{m}@{_tau_key(t)}" for t in thresholds
+    keys = ["chamfer_m", "spurious_fraction", "normal_consistency"] + [f"{m}@{_tau_key(t)}" for t in thresholds
                                                  for m in ("fscore", "precision", "recall", "recall_visible",
                                                            "recall_hidden")]
     for k in keys:

@@ -55,7 +55,7 @@ SCENE_ROWS = (("depth L1 (m), valid test views", "depth_l1_m", ".4f"),
 OBJECT_COLUMNS = (("Chamfer m", "chamfer_m", ".4f"), ("F@1cm", "fscore@1cm", ".3f"), ("F@2cm", "fscore@2cm", ".3f"),
                   ("F@5cm", "fscore@5cm", ".3f"), ("P@2cm", "precision@2cm", ".3f"),
                   ("recall vis@2cm", "recall_visible@2cm", ".3f"), ("recall hidden@2cm", "recall_hidden@2cm", ".3f"),
-                  ("spurious", "spurious_fraction", ".3f"))
+                  ("spurious", "spurious_fraction", ".3f"), ("normals", "normal_consistency", ".3f"))
 
 
 def scene_lines(report) -> list:

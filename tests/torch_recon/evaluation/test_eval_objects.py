@@ -42,7 +42,22 @@ def test_exact_copy_scores_perfectly():
     # the sensor sees the front and top faces (0.5 of the 1.25 m^2 scored) of the box
     assert o["visible_share"] == pytest.approx(0.5 / 1.25, abs=0.03)
     assert r["scene"]["spurious_fraction"] == 0.0 and r["scene"]["degenerate_faces"] == 0
-    assert r["scene"]["normal_consistency"] > 0.99
+    assert r["scene"]["normal_consistency"] > 0.99 and o["normal_consistency"] > 0.99
+
+
+def test_lumpy_copy_close_in_distance_but_not_in_normals():
+    """A copy of the box with seeded bumps (vertices moved up to 8 mm along their normals, 2 cm apart) is within 2 cm
+    everywhere, so the distance metrics call it near perfect; its normals are not (the lumpy blob a user sees)."""
+    gt, room, obj, sensor = _scene()
+    v, f = trimesh.remesh.subdivide_to_size(obj.vertices, obj.faces, max_edge=0.02)
+    lumpy = trimesh.Trimesh(v, f, process=True)
+    rng = np.random.default_rng(0)
+    lumpy.vertices = lumpy.vertices + rng.uniform(-0.008, 0.008, (len(lumpy.vertices), 1)) * lumpy.vertex_normals
+    r = object_surface_metrics(trimesh.util.concatenate([room, lumpy]), gt, [("box", obj)], sensor, S)
+    o = r["objects"]["box"]
+    assert o["fscore@2cm"] > 0.97
+    assert o["normal_consistency"] < 0.9
+    assert r["summary"]["normal_consistency"] == o["normal_consistency"]
 
 
 def test_copy_shifted_by_one_cm():
