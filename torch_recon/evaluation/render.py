@@ -105,7 +105,8 @@ def plot_grid(rows, path, vmax_err=0.25, table_text=None, title=None):
 
     n = len(rows)
     extra = 1 if table_text else 0
-    fig = plt.figure(figsize=(11, 3.3 * n + 3.0 * extra))
+    height = 3.3 * n + 3.0 * extra
+    fig = plt.figure(figsize=(11, height))
     gs = fig.add_gridspec(n + extra, 3, height_ratios=[1] * n + ([0.9] * extra))
     cmap = matplotlib.colormaps["magma"].with_extremes(bad="#3060a0")   # blue: the GT ray hits nothing
     for i, (vt, g, r, e) in enumerate(rows):
@@ -125,7 +126,7 @@ def plot_grid(rows, path, vmax_err=0.25, table_text=None, title=None):
         ax.text(0.0, 1.0, table_text, family="monospace", fontsize=8, va="top")
     if title:
         fig.suptitle(title, fontsize=11)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.35 / height if title else 1))   # room for the title above the panels
     fig.savefig(path, dpi=80)
     plt.close(fig)
 

@@ -115,9 +115,10 @@ def table_text(report) -> str:
     obj = object_rows(report)
     if obj:
         lines.append("")
-        lines.append(f"{'object':<16s}" + "".join(f"{c:>19s}" for c, _, _ in OBJECT_COLUMNS))
+        width = [max(len(c), 7) + 2 for c, _, _ in OBJECT_COLUMNS]     # each column as wide as its title
+        lines.append(f"{'object':<16s}" + "".join(f"{c:>{w}s}" for (c, _, _), w in zip(OBJECT_COLUMNS, width)))
         for name, vals in obj:
-            lines.append(f"{name[:16]:<16s}" + "".join(f"{v:>19s}" for v in vals))
+            lines.append(f"{name[:16]:<16s}" + "".join(f"{v:>{w}s}" for v, w in zip(vals, width)))
     return "\n".join(lines)
 
 
