@@ -72,9 +72,9 @@ class InwardSmoothing:
     movable: np.ndarray               # (same shape as the volume) bool: voxels whose mesh vertices may move inward
     max_move_m: float                 # no vertex moves farther than this from where the Taubin passes left it
     iterations: int                   # Laplacian steps
-    flat_voxels: np.ndarray | None = None  # optional bool volume: flat patches, first moved inward along the normal
-    flat_face_offsets_m: np.ndarray | None = None  # ... with it, (volume shape + (6,)) float: per flat voxel and face
-                                      # (-x, +x, -y, +y, -z, +z), how far that face's vertices move
+    face_offsets_m: np.ndarray | None = None  # optional (volume shape + (6,)) float: per voxel and face (-x, +x, -y,
+                                      # +y, -z, +z), how far that face's vertices first move inward along their normal
+                                      # (recon/hull_flat.py: the flat patches; 0 elsewhere)
 
 
 def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: bool = True,
@@ -131,15 +131,13 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
         inside = mesh.vertices - 0.5 * spacing * mesh.vertex_normals
         g = np.clip(np.rint((inside - lo) / spacing).astype(np.int64), 0, np.array(np.shape(volume)) - 1)
         mov = np.asarray(inward.movable, bool)[g[:, 0], g[:, 1], g[:, 2]]
-        flat = None
-        if inward.flat_voxels is not None and inward.flat_face_offsets_m is not None:
-            # those vertices first move inward along the normal, by their voxel face's own offset (the normal's axis)
-            on = mov & np.asarray(inward.flat_voxels, bool)[g[:, 0], g[:, 1], g[:, 2]]
+        first = None
+        if inward.face_offsets_m is not None:   # a vertex's face: its voxel's face along the normal's main axis
             n = np.asarray(mesh.vertex_normals)
             axis = np.abs(n).argmax(1)
             face = 2 * axis + (n[np.arange(len(n)), axis] > 0)
-            flat = (on, np.where(on, inward.flat_face_offsets_m[g[:, 0], g[:, 1], g[:, 2], face], 0.0))
-        inward_smoothing(mesh, mov, float(inward.max_move_m), int(inward.iterations), flat=flat)
+            first = np.where(mov, inward.face_offsets_m[g[:, 0], g[:, 1], g[:, 2], face], 0.0)
+        inward_smoothing(mesh, mov, float(inward.max_move_m), int(inward.iterations), first_move=first)
     removed = 0
     if min_island_fraction > 0 and len(mesh.faces):
         # islands = faces connected through shared edges (as mesh.split), labelled in one pass: split builds a
@@ -163,26 +161,27 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
     return _without_degenerate(mesh), removed
 
 
-def inward_smoothing(mesh, movable, max_move: float, iterations: int, lamb: float = 0.5, flat=None):
+def inward_smoothing(mesh, movable, max_move: float, iterations: int, lamb: float = 0.5, first_move=None):
     """Umbrella-Laplacian steps (lamb each) on the `movable` vertices (bool (V,)) with every outward component
     (along the vertex normal) removed and the total displacement clamped to `max_move` (m), in place: a
     staircase's convex steps are cut (a visual hull over-estimates its object), its flat runs stay, and no
     vertex leaves the side of the surface it started on by more than the clamp.
-    flat: optional (bool (V,), offset m: one or per vertex (V,)): those vertices first move `offset` inward along
-    their normal (flat runs, recon/hull_flat.py); the clamp, from there, grows by the largest offset."""
+    first_move: optional (V,) m: each vertex first moves this far inward along its normal (flat runs,
+    recon/hull_flat.py); the clamp, from there, grows by the largest such move."""
     import trimesh
 
     if not np.any(movable):
         return mesh
-    if flat is not None and np.any(flat[0]):
-        offset = np.broadcast_to(np.asarray(flat[1], np.float64), (len(mesh.vertices),))[flat[0]]
-        if not np.all(np.isfinite(offset)):
+    if first_move is not None:
+        first_move = np.asarray(first_move, np.float64)
+        if not np.all(np.isfinite(first_move)):
             raise MeshExportError("flat hull offsets are not finite")
-        if offset.max() > 0:
+        moved = first_move > 0
+        if moved.any():
             v = np.asarray(mesh.vertices, np.float64).copy()
-            v[flat[0]] -= offset[:, None] * np.asarray(mesh.vertex_normals, np.float64)[flat[0]]
+            v[moved] -= first_move[moved, None] * np.asarray(mesh.vertex_normals, np.float64)[moved]
             mesh.vertices = v
-            max_move = max_move + float(offset.max())
+            max_move = max_move + float(first_move.max())
     start = np.asarray(mesh.vertices, np.float64).copy()
     lap = trimesh.smoothing.laplacian_calculation(mesh)     # row-normalised adjacency: the neighbours' mean
     idx = np.nonzero(movable)[0]

@@ -138,17 +138,16 @@ def flat_face_offsets(flat, free, cells, approach, voxel: float) -> np.ndarray:
 
 
 def flat_patches_inward(model, inward) -> None:
-    """Set the flat patches of a fast model's `mesh_export.InwardSmoothing` `inward` (its `movable` hull) and how far
-    they move (`fast.mesh_hull_flat_approach`: the light's gap, marched on the start field's lit segments)."""
+    """Set how far the faces of the flat patches of a fast model's `mesh_export.InwardSmoothing` `inward` (its
+    `movable` hull) first move (`face_offsets_m`; `fast.mesh_hull_flat_approach`: the light's gap, marched on the
+    start field's lit segments)."""
     from .hull_subvoxel import carving_segments
 
     fc, box = model.fc, model.grid.box
     free = (model._start_raw <= fc.raw_free + 1e-3).cpu().numpy()
-    inward.flat_voxels = flat_patch_voxels(inward.movable, free, fc.mesh_hull_flat_patch_faces)
-    if not inward.flat_voxels.any():        # (cave-chair: its hull's faces are small or beside the light)
+    flat = flat_patch_voxels(inward.movable, free, fc.mesh_hull_flat_patch_faces)
+    if not flat.any():        # (cave-chair: its hull's faces are small or beside the light)
         return
-    flat = torch.as_tensor(inward.flat_voxels)
-    cells = (F.max_pool3d(flat[None, None].float(), 3, 1, 1)[0, 0] > 0) & torch.as_tensor(free)  # (6-neighbours and more)
+    cells = (F.max_pool3d(torch.as_tensor(flat)[None, None].float(), 3, 1, 1)[0, 0] > 0) & torch.as_tensor(free)
     approach = light_approach(box, *carving_segments(model, lit=True), cells.to(box.bbox_min.device))
-    inward.flat_face_offsets_m = flat_face_offsets(inward.flat_voxels, free, cells.numpy(), approach.cpu().numpy(),
-                                                   box.voxel)
+    inward.face_offsets_m = flat_face_offsets(flat, free, cells.numpy(), approach.cpu().numpy(), box.voxel)

@@ -41,7 +41,7 @@ def test_the_flat_face_moves_inward_by_its_offset_where_smoothing_alone_leaves_i
     flat_voxels = flat_patch_voxels(hull, free, 15)
     offsets = np.where(flat_voxels[..., None], 0.25, 0.0) * np.ones(6)     # a quarter voxel on every face
     flat, _ = mesh_from_volume(vol, (0, 0, 0), (15, 15, 15), 0.5,
-                               inward=InwardSmoothing(hull, 0.5, 10, flat_voxels, offsets), **kw)
+                               inward=InwardSmoothing(hull, 0.5, 10, offsets), **kw)
     mid = lambda m: m.vertices[(np.abs(m.vertices[:, 1] - 7.5) < 1.6) & (np.abs(m.vertices[:, 2] - 7.5) < 1.6)
                                & (m.vertices[:, 0] > 8)]
     assert np.all(mid(plain)[:, 0] > 8.44)                        # the smoothing leaves the flat run (about)
