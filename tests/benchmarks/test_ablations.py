@@ -13,7 +13,8 @@ from benchmarks.suites import ablation_ambient, ablations
 REPORT = {"depth_l1_m": 0.04, "n_test_views_invalid": 0,
           "object_metrics": {"objects": {"chair": {}, "lamp": {}},
                              "summary": {"fscore@1cm": 0.6, "fscore@2cm": 0.88, "fscore@5cm": 0.97,
-                                         "recall_hidden@2cm": 0.87, "recall_visible@2cm": 0.95},
+                                         "recall_hidden@2cm": 0.87, "recall_visible@2cm": 0.95,
+                                         "normal_consistency": 0.85},
                              "scene": {"spurious_fraction": 0.0036, "objects_spurious_fraction": 0.01,
                                        "normal_consistency": 0.9, "degenerate_faces": 0}}}
 
@@ -23,6 +24,7 @@ def test_object_fields_reads_the_evaluate_report():
     assert set(f) == set(runners.OBJECT_FIELDS)
     assert (f["obj_f2cm"], f["hidden_recall_2cm"], f["spurious"], f["degenerate_faces"]) == (0.88, 0.87, 0.0036, 0)
     assert f["objects"] == "chair,lamp"
+    assert (f["normal_consistency"], f["obj_normals"]) == (0.9, 0.85)     # whole mesh vs mean over the objects
     empty = runners.object_fields({"depth_l1_m": 0.1})          # a dataset without object labels
     assert empty["obj_f2cm"] is None and empty["objects"] is None
 
