@@ -10,8 +10,8 @@ import pytest
 import trimesh
 
 from torch_recon.contract.dataset import load_dataset
-from torch_recon.evaluate import (EvalSettings, depth_metrics, evaluate, render_density_depth, render_mesh_depth,
-                                  surface_metrics)
+from torch_recon.evaluate import EvalSettings, depth_metrics, evaluate, render_density_depth, render_mesh_depth
+from torch_recon.evaluation.surface import surface_metrics
 from torch_recon.contract.frames import camera_ray_directions, look_at_c2w, paper_test_view_cameras
 from torch_recon.contract.synthetic import (box_room_scene, default_sensor, paper_laser_directions,
                                            write_analytic_dataset)

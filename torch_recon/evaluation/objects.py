@@ -28,7 +28,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ..evaluate import point_to_mesh_distance
+from .surface import point_to_mesh_distance
 
 
 @dataclass
