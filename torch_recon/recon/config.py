@@ -128,6 +128,9 @@ class FitConfig:
         if not (math.isfinite(self.fast.lit_path_tolerance_voxels) and self.fast.lit_path_tolerance_voxels >= 0):
             raise SettingsError("fast.lit_path_tolerance_voxels",
                                 f"expected voxels >= 0 (0: off), got {self.fast.lit_path_tolerance_voxels}")
+        if self.fast.explain_shared_cluster_voxels < 0:
+            raise SettingsError("fast.explain_shared_cluster_voxels",
+                                f"expected a count of voxels >= 0 (0: off), got {self.fast.explain_shared_cluster_voxels}")
         if not self.fast.explain_lead_voxels >= 0:
             raise SettingsError("fast.explain_lead_voxels",
                                 f"expected voxels >= 0 (0: off), got {self.fast.explain_lead_voxels}")

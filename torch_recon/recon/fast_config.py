@@ -80,6 +80,13 @@ class FastConfig:
                                       # (shadow_blockers.py). Session 13, 0.5, six scenes: F@2cm cave-chair 0.944 ->
                                       # 0.949, curved-wall 0.941 -> 0.951, outside-fov +0.004; thin-structures hidden
                                       # R 0.866 -> 0.859, dark-room 0.902 / 0.827 -> 0.895 / 0.815: opt-in; 0: off
+    explain_shared_cluster_voxels: int = 0  # > 0: a shadowed segment whose blocker lies in a cluster (26-neighbours)
+                                      # of at least this many restored blockers takes instead, among the blockers
+                                      # picked on its own path, the one most segments picked (shadow_blockers.
+                                      # shared_blockers): the lamp shade's lid and interior lumps go to its walls.
+                                      # Session 16, 200 (only thin-structures' shade is that large): thin-structures
+                                      # F@2cm / hidden R 0.838 / 0.865 -> 0.845 / 0.853 (lamp P 0.667 -> 0.702, hidden
+                                      # R 0.827 -> 0.802: right wall voxels go with the lumps): opt-in; 0: off
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
     lit_path_tolerance_voxels: float = 1.0  # > 0: a lit pair whose measured path is farther than this (voxels; at
                                       # least half a time bin) from the path through its pixel's visible point x got

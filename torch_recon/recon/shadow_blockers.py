@@ -34,11 +34,37 @@ def blocker_weight(label: torch.Tensor, power: float) -> torch.Tensor | None:
 def restored_runs(restored: torch.Tensor, min_voxels: int) -> torch.Tensor:
     """The restored blockers (nx, ny, nz bool) in a connected run (26-neighbours) of at least `min_voxels`: a part's
     column the shadows put back, not a lone voxel (a speck the mesh's island cleanup should still drop)."""
+    return restored & (cluster_sizes(restored) >= min_voxels)
+
+
+def cluster_sizes(mask: torch.Tensor) -> torch.Tensor:
+    """Per voxel (nx, ny, nz) long, the size of its 26-connected cluster in `mask` (0 outside it)."""
     from scipy.ndimage import label as connected
 
-    parts, n = connected(restored.cpu().numpy(), structure=[[[1] * 3] * 3] * 3)
-    if n == 0:
-        return torch.zeros_like(restored)
-    size = torch.bincount(torch.as_tensor(parts).reshape(-1), minlength=n + 1)
+    parts, n = connected(mask.cpu().numpy(), structure=[[[1] * 3] * 3] * 3)
+    parts = torch.as_tensor(parts).long()
+    size = torch.bincount(parts.reshape(-1), minlength=n + 1)
     size[0] = 0
-    return (size[torch.as_tensor(parts).long()] >= min_voxels).to(restored.device)
+    return size[parts].to(mask.device)
+
+
+def shared_blockers(box, picked: torch.Tensor, paths, score: torch.Tensor, min_cluster: int) -> torch.Tensor:
+    """Second pass of `voxel_evidence.explain_shadows`: a segment whose pick lies in a cluster of at least
+    `min_cluster` restored voxels takes instead, among the first pass's picks on its own path, the one most segments
+    picked (ties: the higher ranking). paths: per chunk (flat (R, n) voxel of each sample, cand (R, n) candidates)."""
+    n = int(score.numel())
+    first = torch.zeros(n, dtype=torch.bool, device=picked.device)
+    first[picked] = True
+    votes = torch.bincount(picked, minlength=n).float()
+    big = cluster_sizes(first.reshape(box.shape)).reshape(-1) >= min_cluster
+    rank = votes + score.clamp(min=0) / (float(score.clamp(min=0).max()) + 1.0)
+    out, k = [], 0
+    for flat, cand in paths:
+        own = picked[k:k + flat.shape[0]]
+        k += flat.shape[0]
+        shared = cand & first[flat]
+        sc = torch.where(shared, rank[flat], torch.full_like(rank[flat], -1.0))
+        best, j = sc.max(1)
+        alt = flat.gather(1, j[:, None]).squeeze(1)
+        out.append(torch.where(big[own] & (best >= 0), alt, own))
+    return torch.cat(out)

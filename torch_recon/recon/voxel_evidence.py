@@ -22,7 +22,7 @@ from .data import RayData, lit_path_tolerance, pixel_angle, unexplained_lit
 from .fields import GridBox
 from .sampler import ray_box
 from .segment_crossings import accumulate_crossings, marching_cells, pair_segments, segment_counts, spot_crossings
-from .shadow_blockers import blocker_weight
+from .shadow_blockers import blocker_weight, shared_blockers
 from .thin_parts import thin_part_voxels
 
 #: evidence label of a carved voxel put back because a shadowed segment needs a blocker there
@@ -49,7 +49,7 @@ class VoxelEvidence:
 
 def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count, origins, dirs, near, far, step,
                     restorable=(3,), chunk_samples: int = 1 << 20, score=None, lead: float = 0.0,
-                    weight=None) -> int:
+                    weight=None, shared_cluster_voxels: int = 0) -> int:
     """Make every shadowed segment blocked (in place on the flat `label`): a shadowed segment whose voxels
     were all carved free gets back the carved voxel along it with the most shadowed and fewest free
     crossings (shadow / (lit + 1)). Carving through whole voxels takes thin parts
@@ -60,7 +60,9 @@ def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count,
     sensor is shadowed by the part itself (its own voxel and the next), inside the offset the segments
     skip next to x; without the lead the blocker lands on the first voxel past the offset, beside the
     part. `weight` (flat, float > 0): multiplies the ranking (`shadow_blockers.blocker_weight`).
-    Returns the number of voxels restored."""
+    `shared_cluster_voxels` > 0: a segment whose pick lies in a cluster of at least that many restored voxels takes
+    the pick on its path that most segments made (`shadow_blockers.shared_blockers`). Returns the number of voxels
+    restored."""
     if origins.shape[0] == 0:
         return 0
     if score is None:
@@ -70,7 +72,7 @@ def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count,
     can = torch.zeros(8, dtype=torch.bool, device=label.device)
     can[list(restorable)] = True
     lead = min(max(float(lead), 0.0), float(near.min()))
-    picked = []
+    picked, paths = [], []
     for _, flat, keep in marching_cells(box, origins, dirs, near - lead, far, step, chunk_samples):
         flat = flat.where(keep, 0.0).long()
         lab = label[flat]
@@ -81,7 +83,12 @@ def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count,
         best, j = sc.max(1)
         ok = best >= 0
         picked.append(flat[ok].gather(1, j[ok, None]).squeeze(1))
-    picked = torch.unique(torch.cat(picked))
+        if shared_cluster_voxels > 0:
+            paths.append((flat[ok], cand[ok]))
+    picked = torch.cat(picked)
+    if shared_cluster_voxels > 0 and picked.numel() > 0:
+        picked = shared_blockers(box, picked, paths, score, shared_cluster_voxels)
+    picked = torch.unique(picked)
     label[picked] = RESTORED
     return int(picked.numel())
 
@@ -119,7 +126,8 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
                   explain_camera_free: bool = False, explain_score: str = "ratio", nearest_free: bool = False,
                   nearest_surface: bool = False, seen_free=None, thin_part_edges: bool = True,
                   thin_part_centre: str = "off", explain_lead_voxels: float = 0.0, thin_points=None,
-                  lit_path_tolerance_m: float = 0.0, explain_neighbour_power: float = 0.0):
+                  lit_path_tolerance_m: float = 0.0, explain_neighbour_power: float = 0.0,
+                  explain_shared_cluster_voxels: int = 0):
     """`VoxelEvidence`: per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
     blocker of a shadowed segment (with `explain_shadow_rays`), 6 a part under a pixel wide (with
     `nearest_surface`: `thin_part_points`), and the voxels lit segments cross; and the count of shadowed secondary
@@ -129,7 +137,8 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     thin_points: `thin_parts.thin_part_cloud` of these settings when already computed.
     lit_path_tolerance_m > 0: a lit pair whose path disagrees with its pixel's visible point by more carves from
     where its own path puts the surface on the pixel ray (`unexplained_lit`).
-    explain_neighbour_power > 0: a restored blocker is looked for next to what stayed occupied (`blocker_weight`)."""
+    explain_neighbour_power > 0: a restored blocker is looked for next to what stayed occupied (`blocker_weight`).
+    explain_shared_cluster_voxels > 0: blockers in clusters at least this large are shared (`shared_blockers`)."""
     dev = data.pixel_dirs.device
     n = int(np.prod(box.shape))
     step = step_voxels * box.voxel
@@ -186,9 +195,10 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
         weight = blocker_weight(label.reshape(box.shape), explain_neighbour_power)
         if explain_camera_free:     # a part thinner than a pixel: the pixel ray saw past it
             explain_shadows(box, label, lit_count + cam_free, shadow_count, *seg, step, restorable=(2, 3),
-                            score=score, lead=lead, weight=weight)
+                            score=score, lead=lead, weight=weight, shared_cluster_voxels=explain_shared_cluster_voxels)
         else:
-            explain_shadows(box, label, lit_count, shadow_count, *seg, step, score=score, lead=lead, weight=weight)
+            explain_shadows(box, label, lit_count, shadow_count, *seg, step, score=score, lead=lead, weight=weight,
+                            shared_cluster_voxels=explain_shared_cluster_voxels)
     return VoxelEvidence(label.reshape(box.shape), (lit_count > 0).reshape(box.shape)), shadow_count.reshape(box.shape)
 
 
@@ -205,5 +215,6 @@ def configured_evidence_grid(data: RayData, box: GridBox, cfg, secondary_offset_
                          thin_part_centre=cfg.thin_part_centre, explain_lead_voxels=cfg.explain_lead_voxels,
                          thin_points=thin_points,
                          lit_path_tolerance_m=lit_path_tolerance(data, box.voxel, cfg.lit_path_tolerance_voxels),
-                         explain_neighbour_power=cfg.explain_neighbour_power)
+                         explain_neighbour_power=cfg.explain_neighbour_power,
+                         explain_shared_cluster_voxels=cfg.explain_shared_cluster_voxels)
 

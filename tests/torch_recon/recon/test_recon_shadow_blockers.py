@@ -114,3 +114,28 @@ def test_the_model_keeps_the_start_fields_restored_blockers_without_labelling_ag
 def test_a_negative_restored_run_length_is_refused():
     with pytest.raises(SettingsError, match="fast.mesh_keep_restored_voxels"):
         FitConfig.from_dict({"mode": "fast", "fast": {"mesh_keep_restored_voxels": -1}})
+
+
+def test_a_segment_in_a_large_restored_cluster_takes_the_blocker_most_segments_picked():
+    """`fast.explain_shared_cluster_voxels` (shadow_blockers.shared_blockers): a segment whose own best voxel lies in a
+    cluster of restored voxels at least that large moves to the first pass's pick on its path that most segments
+    picked (the lamp shade's wall rather than a lid voxel); in a smaller cluster it keeps its own."""
+    from torch_recon.recon.shadow_blockers import shared_blockers
+
+    box = GridBox([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], 10)
+    flat_of = lambda i, j, k: (i * 10 + j) * 10 + k  # noqa: E731
+    wall, lid, lone, other = flat_of(5, 5, 5), flat_of(5, 5, 6), flat_of(1, 1, 1), flat_of(1, 1, 3)
+    score = torch.zeros(1000)
+    score[[wall, lid, lone, other]] = torch.tensor([5.0, 9.0, 9.0, 5.0])
+    # four segments: three pick the wall, one (crossing the wall too) picks the lid beside it; one lone pick elsewhere
+    paths = torch.tensor([[wall, wall], [wall, wall], [wall, wall], [lid, wall], [lone, other]])
+    cand = torch.ones_like(paths, dtype=torch.bool)
+    picked = torch.tensor([wall, wall, wall, lid, lone])
+    out = shared_blockers(box, picked, [(paths, cand)], score, min_cluster=2)
+    assert out.tolist() == [wall, wall, wall, wall, lone]
+    assert shared_blockers(box, picked, [(paths, cand)], score, min_cluster=3).tolist() == picked.tolist()
+
+
+def test_a_negative_shared_cluster_size_is_refused():
+    with pytest.raises(SettingsError, match="fast.explain_shared_cluster_voxels"):
+        FitConfig.from_dict({"mode": "fast", "fast": {"explain_shared_cluster_voxels": -1}})
