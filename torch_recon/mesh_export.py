@@ -72,9 +72,9 @@ class InwardSmoothing:
     movable: np.ndarray               # (same shape as the volume) bool: voxels whose mesh vertices may move inward
     max_move_m: float                 # no vertex moves farther than this from where the Taubin passes left it
     iterations: int                   # Laplacian steps
-    face_offsets_m: np.ndarray | None = None  # optional (volume shape + (6,)) float: per voxel and face (-x, +x, -y,
-                                      # +y, -z, +z), how far that face's vertices first move inward along their normal
-                                      # (recon/hull_flat.py: the flat patches; 0 elsewhere)
+    face_offsets_m: np.ndarray | None = None  # optional (volume shape + (6,)): per voxel and face (-x, +x, -y, +y, -z,
+                                      # +z), how far its vertices first move inward along their normal (recon/hull_flat.py)
+    occupancy: tuple | None = None    # optional (voxels (K, 3), share (K,)) put in the field first (recon/lit_fans.py)
 
 
 def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: bool = True,
@@ -92,11 +92,9 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
     keep_near: optional (points (N, 3), radius_m): a small island with a vertex within radius of one of these
     points is kept (measured thin parts: a one-voxel pole stepping diagonally between voxels falls apart into
     pieces below the island size, which are not specks).
-    inward: optional `InwardSmoothing`: after the Taubin passes, the vertices whose voxel just inside them (half a
-    grid step against the normal) is movable are smoothed further, only inward and at most max_move_m from where
-    they were (`inward_smoothing`).
-    Faces of zero area are removed and coincident vertices merged in every case.
-    """
+    inward: optional `InwardSmoothing`: its occupancy goes into the field first; after the Taubin passes, the
+    vertices whose voxel half a grid step inside is movable are smoothed further, only inward (`inward_smoothing`).
+    Faces of zero area are removed and coincident vertices merged in every case."""
     import trimesh
     from skimage.measure import marching_cubes
 
@@ -110,6 +108,9 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
                               f"no surface (nothing occupied, or everything)")
     if free_space is not None and np.shape(free_space) != v.shape:
         raise MeshExportError(f"free_space has shape {np.shape(free_space)}, expected the volume's {v.shape}")
+    if inward is not None and inward.occupancy is not None:
+        from .recon.lit_fans import with_occupancy
+        v = with_occupancy(v, *inward.occupancy, inward.movable)
     origin = lo
     if close_boundary:   # a surface touching the box is closed instead of left open
         v = np.pad(v, 1, mode="constant", constant_values=min(float(v.min()), level - 1.0))
@@ -163,11 +164,10 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
 
 def inward_smoothing(mesh, movable, max_move: float, iterations: int, lamb: float = 0.5, first_move=None):
     """Umbrella-Laplacian steps (lamb each) on the `movable` vertices (bool (V,)) with every outward component
-    (along the vertex normal) removed and the total displacement clamped to `max_move` (m), in place: a
-    staircase's convex steps are cut (a visual hull over-estimates its object), its flat runs stay, and no
-    vertex leaves the side of the surface it started on by more than the clamp.
-    first_move: optional (V,) m: each vertex first moves this far inward along its normal (flat runs,
-    recon/hull_flat.py); the clamp, from there, grows by the largest such move."""
+    (along the vertex normal) removed and the total displacement clamped to `max_move` (m), in place: a staircase's
+    convex steps are cut (a visual hull over-estimates its object), its flat runs stay, and no vertex leaves the
+    side of the surface it started on by more than the clamp. first_move: optional (V,) m: each vertex first moves
+    this far inward along its normal (flat runs, recon/hull_flat.py); the clamp then grows by the largest one."""
     import trimesh
 
     if not np.any(movable):

@@ -245,6 +245,15 @@ class FastConfig:
                                           # others within 0.001 (curved-wall L1 0.0355 -> 0.0359); +0.3-1.4 s of export
                                           # (docs/reconstruction.md); false: off. Session 14's fixed offset (0.25 voxel:
                                           # dark-room 0.927 / 0.894 but outside-fov 0.641 / 0.596) was removed
+    mesh_hull_lit_fan: bool = False       # the shrinkable hull's voxels and the lit-carved ones beside them enter marching
+                                          # cubes as the share of their 4^3 sub-points inside no spot's lit fan (the
+                                          # nearest pair seen from the spot lit and reaching past the point; carved ones
+                                          # capped at 0.4, hull ones at least 0.55; recon/lit_fans.py), not whole voxels:
+                                          # the light between the pixels' segments, as session 15's oracle hull. Needs
+                                          # mesh_hull_flat_approach. Session 16, F@2cm / hidden R / spurious: organic-
+                                          # occluded 0.808 / 0.781 / 1.21 % -> 0.814 / 0.790 / 1.31 % (blob hidden R
+                                          # 0.657 -> 0.676, normals 0.895 -> 0.898), thin-structures hidden R 0.865 ->
+                                          # 0.861 (the lamp): opt-in, +1-3 s of export (docs/reconstruction.md); false: off
     mesh_hull_flat_patch_faces: int = 15  # ... the patch size (coplanar faces of hull voxels towards carved space)
     mesh_hull_shrink_graze_samples: int = 4  # ... except hull voxels a shadowed segment grazes (crosses at most this
                                           # many marching samples of the hull: the shadow's edge); 0: none excepted
