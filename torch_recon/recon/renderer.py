@@ -52,46 +52,35 @@ def render_field(field, origins, dirs, t0, t1) -> RenderOut:
 SAMPLE_BLOCK = 8
 
 
-def occupied_counts(occupancy: torch.Tensor) -> torch.Tensor:
-    """Summed-volume table of `occupancy` (nx, ny, nz) bool: (nx+1, ny+1, nz+1) int32 counts of the occupied
-    voxels below each corner, so that any box of voxels is counted with eight look-ups (`render_pruned`)."""
-    s = torch.zeros(tuple(n + 1 for n in occupancy.shape), dtype=torch.int32, device=occupancy.device)
-    s[1:, 1:, 1:] = occupancy.to(torch.int32).cumsum(0).cumsum(1).cumsum(2)
-    return s
+def occupied_ahead(occupancy: torch.Tensor, k: int) -> torch.Tensor:
+    """(nx, ny, nz) bool: an occupied voxel lies in the k x k x k voxels from this one towards +x, +y, +z (the
+    box of a block whose lowest cell is here and which spans at most k cells per axis: one look-up per block)."""
+    out = occupancy.clone()
+    for axis in range(3):
+        grown = out.clone()
+        for shift in range(1, min(k, out.shape[axis])):
+            n = out.shape[axis] - shift
+            grown.narrow(axis, 0, n).logical_or_(out.narrow(axis, shift, n))
+        out = grown
+    return out
 
 
-_last_table = (None, -1, None)      # (weak reference to an occupancy grid, its version, its table)
+_last_ahead = (None, -1, 0, None)      # (weak reference to an occupancy grid, its version, k, occupied_ahead)
 
 
-def _occupied_counts_of(occupancy: torch.Tensor) -> torch.Tensor:
-    """`occupied_counts` of the grid the last call was given, built again only for another grid or after an
-    in-place change (a model refreshes its occupancy every few dozen steps and renders it a few hundred times)."""
-    global _last_table
-    ref, version, table = _last_table
-    if ref is None or ref() is not occupancy or version != occupancy._version:
-        table = occupied_counts(occupancy)
-        _last_table = (weakref.ref(occupancy), occupancy._version, table)
+def _occupied_ahead_of(occupancy: torch.Tensor, k: int) -> torch.Tensor:
+    """`occupied_ahead` of the grid the last call was given, built again only for another grid, another k or after
+    an in-place change (a model refreshes its occupancy every few dozen steps and renders it a few hundred times)."""
+    global _last_ahead
+    ref, version, k_last, table = _last_ahead
+    if ref is None or ref() is not occupancy or version != occupancy._version or k != k_last:
+        table = occupied_ahead(occupancy, k)
+        _last_ahead = (weakref.ref(occupancy), occupancy._version, k, table)
     return table
 
 
-def _box_count(table, lo, hi):
-    """Occupied voxels in the inclusive voxel boxes lo..hi (each (M, 3) int64) of a summed-volume table."""
-    _, sy, sz = table.shape
-    flat = table.reshape(-1)
-    x = (lo[:, 0], hi[:, 0] + 1)
-    y = (lo[:, 1], hi[:, 1] + 1)
-    z = (lo[:, 2], hi[:, 2] + 1)
-    total = torch.zeros(lo.shape[0], dtype=table.dtype, device=table.device)
-    for i in range(2):
-        for j in range(2):
-            for k in range(2):
-                v = flat.index_select(0, (x[i] * sy + y[j]) * sz + z[k])
-                total += v if (i + j + k) % 2 == 1 else -v
-    return total        # inclusion-exclusion: + where the corner takes an odd number of upper faces
-
-
 def render_pruned(grid, occupancy, origins, dirs, near, far, step: float, tau_grid=None,
-                  stop_tau: float = 12.0, occupied_table=None) -> RenderOut:
+                  stop_tau: float = 12.0) -> RenderOut:
     """March a density grid at a fixed step, evaluating it only in occupied cells (others: sigma = 0).
 
     Two passes (nerfacc style): a pass without autograd finds the occupied samples and, given
@@ -102,10 +91,9 @@ def render_pruned(grid, occupancy, origins, dirs, near, far, step: float, tau_gr
 
     The first pass looks at blocks of SAMPLE_BLOCK samples before single samples: a sample's cell index
     is monotone along the ray (every float step of its computation is), so the cells of a block's samples
-    lie in the box of its first and last sample's cells, and a block whose box holds no occupied voxel
-    (`occupied_table`: `occupied_counts(occupancy)`, kept from the last call on the same grid when not given) or that lies outside
-    [near, far] and the box has no sample to keep. The samples kept are exactly those of testing every
-    sample on the ray.
+    lie in the box of its first and last sample's cells; a block with no occupied voxel in the k x k x k voxels
+    from its box's lowest corner (k: the widest box of the call; `occupied_ahead`) or that lies outside
+    [near, far] has no sample to keep. The samples kept are exactly those of testing every sample.
     """
     r = origins.shape[0]
     box = grid.box
@@ -133,11 +121,13 @@ def render_pruned(grid, occupancy, origins, dirs, near, far, step: float, tau_gr
         t_last = near_d[:, None] + (last + 0.5) * step
         live = (t_last + 0.5 * step > lo[:, None]) & (t_first - 0.5 * step < hi[:, None])
         if occupancy is not None:
-            table = _occupied_counts_of(occupancy) if occupied_table is None else occupied_table
             c0 = cells(start[:, None, :], heading[:, None, :], t_first)
             c1 = cells(start[:, None, :], heading[:, None, :], t_last)
-            live &= _box_count(table, torch.minimum(c0, c1).reshape(-1, 3), torch.maximum(c0, c1).reshape(-1, 3)
-                               ).reshape(live.shape) > 0
+            corner = torch.minimum(c0, c1)
+            k = int((torch.maximum(c0, c1) - corner).max()) + 1 if corner.numel() else 1    # 5 at the default step
+            ahead = _occupied_ahead_of(occupancy, k).reshape(-1)
+            live &= ahead.index_select(0, ((corner[..., 0] * ny + corner[..., 1]) * nz + corner[..., 2]).reshape(-1)
+                                       ).reshape(live.shape)
         ray_b, block = torch.nonzero(live, as_tuple=True)      # row-major: by ray, then along it
         k_id = (block[:, None] * SAMPLE_BLOCK + torch.arange(SAMPLE_BLOCK, device=origins.device)).reshape(-1)
         ray_c = ray_b.repeat_interleave(SAMPLE_BLOCK)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from torch_recon.recon.fields import DensityGrid, GridBox
-from torch_recon.recon.renderer import composite_packed, occupied_counts, render_pruned
+from torch_recon.recon.renderer import composite_packed, occupied_ahead, render_pruned
 from torch_recon.recon.sampler import ray_box
 
 
@@ -33,12 +33,12 @@ def dense_march(grid, occupancy, origins, dirs, near, far, step, tau_grid, stop_
     return composite_packed(tau, tmid, ray_id, r)
 
 
-def test_summed_volume_table_counts_boxes():
-    occ = torch.rand(5, 6, 7, generator=torch.Generator().manual_seed(2)) > 0.7
-    table = occupied_counts(occ)
-    assert int(table[-1, -1, -1]) == int(occ.sum())
-    assert int(table[3, 4, 2] - table[1, 4, 2] - table[3, 2, 2] + table[1, 2, 2]
-               - table[3, 4, 0] + table[1, 4, 0] + table[3, 2, 0] - table[1, 2, 0]) == int(occ[1:3, 2:4, 0:2].sum())
+def test_occupied_ahead_looks_k_voxels_towards_plus_xyz():
+    occ = torch.rand(7, 6, 9, generator=torch.Generator().manual_seed(2)) > 0.97
+    ahead = occupied_ahead(occ, 3)
+    for x, y, z in ((0, 0, 0), (2, 3, 4), (6, 5, 8), (5, 1, 7)):
+        assert bool(ahead[x, y, z]) == bool(occ[x:x + 3, y:y + 3, z:z + 3].any())
+    assert torch.equal(occupied_ahead(occ, 1), occ)
 
 
 def test_block_pass_keeps_the_dense_marchs_samples_bit_for_bit():
