@@ -17,7 +17,7 @@ from .data import RayData, lit_path_tolerance, unexplained_lit, without_lit
 from .fields import DensityGrid, GridBox
 from .hull_subvoxel import SHRINK_ITERATIONS, binary_boundary_inset, shrinkable_hull
 from .init import grid_bbox, in_view, initial_grid
-from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total_loss
+from .losses import all_finite, distance_loss, in_warmup, predicted_path, shadow_loss, total_loss
 from .renderer import render_pruned, secondary_rays
 from .sampler import ray_box
 from .smoothness import NormalConsistencyPrior
@@ -365,7 +365,7 @@ class FastModel(ReconstructionModel):
         return out
 
     def params_finite(self) -> bool:
-        return bool(torch.isfinite(self.grid.raw).all())
+        return all_finite(self.grid.raw)
 
     def state_dict(self):
         return {"level": self.level, "raw": self.grid.raw.detach().clone(),

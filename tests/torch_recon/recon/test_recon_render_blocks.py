@@ -65,3 +65,18 @@ def test_block_pass_keeps_the_dense_marchs_samples_bit_for_bit():
             assert torch.equal(out.ray_index, ref.ray_index)
             for a, b in ((out.weights, ref.weights), (out.depth, ref.depth), (out.transmittance, ref.transmittance)):
                 assert torch.equal(a, b)
+
+
+def test_all_finite_is_the_value_by_value_test():
+    from torch_recon.recon.losses import all_finite
+
+    x = torch.randn(1000)
+    assert all_finite(x)
+    for bad in (float("nan"), float("inf"), -float("inf")):
+        y = x.clone()
+        y[17] = bad
+        assert not all_finite(y)
+    big = torch.full((10,), 3e38)       # finite values whose sum overflows: still all finite
+    assert not bool(torch.isfinite(big.sum())) and all_finite(big)
+    both = torch.tensor([float("inf"), -float("inf"), 1.0])
+    assert not all_finite(both)
