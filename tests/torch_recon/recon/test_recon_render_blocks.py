@@ -80,3 +80,31 @@ def test_all_finite_is_the_value_by_value_test():
     assert not bool(torch.isfinite(big.sum())) and all_finite(big)
     both = torch.tensor([float("inf"), -float("inf"), 1.0])
     assert not all_finite(both)
+
+
+def test_surface_volume_is_built_once_per_field_and_settings():
+    """The export asks for the mesh field twice (free_evidence, then the mesh): the second is the first's copy;
+    a step of the optimiser, other thin parts or other settings build it again."""
+    from unittest import mock
+
+    from tests.support.recon_fixtures import box_floor_measurements
+    from tests.torch_recon.recon.test_recon_fit import small_config
+    from tests.torch_recon.recon.test_recon_freeze import _meta
+    from torch_recon.recon.data import build_ray_data
+    from torch_recon.recon.models import FastModel
+
+    meas = box_floor_measurements(32)
+    cfg = small_config(steps=1)
+    model = FastModel(build_ray_data(meas), cfg, _meta(meas))
+    with mock.patch.object(FastModel, "_surface_field_of_grid", autospec=True,
+                           side_effect=FastModel._surface_field_of_grid) as built:
+        vol0, level0 = model.surface_volume()
+        vol0[:] = 0.0                           # a caller's change stays its own
+        vol1, level1 = model.surface_volume()
+        assert built.call_count == 1 and level1 == level0 and vol1.any()
+        with torch.no_grad():
+            model.grid.raw += 0.5               # in place, as Adam's step
+        model.surface_volume()
+        assert built.call_count == 2
+        cfg.fast.mesh_level_shift_voxels = 0.1
+        assert model.surface_volume()[1] != level1 and built.call_count == 3
