@@ -49,3 +49,10 @@ def total_loss(dist: torch.Tensor, shadow: torch.Tensor | None, cfg: LossConfig)
     if shadow is not None:
         loss = loss + shadow
     return cfg.loss_scale * loss
+
+
+def all_finite(t: torch.Tensor) -> bool:
+    """True when every value of `t` is finite. A finite sum proves it in one pass without a mask (a NaN makes the
+    sum NaN, an inf makes it inf or NaN); only a non-finite sum (a NaN, an inf, or an overflow of large finite
+    values) is looked at value by value."""
+    return bool(torch.isfinite(t.sum())) or bool(torch.isfinite(t).all())

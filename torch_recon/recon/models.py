@@ -17,52 +17,14 @@ from .data import RayData, lit_path_tolerance, unexplained_lit, without_lit
 from .fields import DensityGrid, GridBox
 from .hull_subvoxel import SHRINK_ITERATIONS, binary_boundary_inset, shrinkable_hull
 from .init import grid_bbox, in_view, initial_grid
-from .losses import distance_loss, in_warmup, predicted_path, shadow_loss, total_loss
-from .renderer import render_pruned, secondary_rays
+from .losses import all_finite
+from .model_interface import ReconstructionModel, pair_loss, rendered_depth  # noqa: F401 (platonerf_model, tests)
+from .renderer import render_pruned
 from .sampler import ray_box
 from .smoothness import NormalConsistencyPrior
 from .thin_parts import thin_part_cloud, thin_part_signed_distance, thin_part_voxels
 from .visible_surface_init import (coarse_sensor_seen_free, in_front_of_visible_surface, seen_depth,
                                    seen_free_points, surface_offset, visible_surface)
-
-
-class ReconstructionModel:
-    """What the trainer asks of every model beyond its methods; the defaults of the interface."""
-
-    skip_warmup = False     # True: the distance-only warm-up would move nothing (start with both losses)
-    plateau_stop = True     # False: run every step of the schedule (no early stop on a loss plateau)
-
-    def after_step(self, step: int) -> bool:
-        """Called after each optimiser step (`step` steps done); True when the model replaced its parameters."""
-        return False
-
-    def training_data(self, data: RayData) -> RayData:
-        """The pairs the losses fit (all of `data` unless a model leaves some out)."""
-        return data
-
-
-def pair_loss(model: ReconstructionModel, data: RayData, idx, step: int, total: int, cfg: FitConfig, offset: float):
-    """Distance (+ shadow after the warm-up) loss of the (spot, pixel) pairs `idx`."""
-    px, sp = data.pair_pixel[idx], data.pair_spot[idx]
-    dirs = data.pixel_dirs[px]
-    c = data.sensor_origin.expand_as(dirs)
-    l = data.spot_points[sp]
-    warm = in_warmup(step, total, cfg.loss) and not model.skip_warmup
-    loss = dirs.new_zeros(())
-    stats = {"dist": 0.0, "shadow": 0.0}
-    for depth in model.camera_depths(c, dirs, px):
-        x = c + dirs * depth[:, None]
-        o, u, near, far, _, length = secondary_rays(x, l, offset)
-        dist = distance_loss(predicted_path(depth, length, data.laser_to_spot[sp]), data.path[idx],
-                             data.lit[idx], cfg.loss)
-        shadow = None
-        if not warm:
-            shadow = sum(shadow_loss(t, data.lit[idx], data.shadowed[idx], cfg.loss)
-                         for t in model.segment_transmittances(o, u, near, far))
-            stats["shadow"] += float(shadow.detach())
-        stats["dist"] += float(dist.detach())
-        loss = loss + total_loss(dist, shadow, cfg.loss)
-    return loss, stats
 
 
 class FastModel(ReconstructionModel):
@@ -77,6 +39,7 @@ class FastModel(ReconstructionModel):
         self._thin_points = None    # (voxel, thin_part_cloud) of the latest grid: the start field and `thin_parts`
         self.evidence = None        # the latest start field's VoxelEvidence: the mesh export reads it back
         self._start_raw = None      # ... and its raw density (nx, ny, nz), where the hull's placement reads it
+        self._surface_field = None  # (what it depends on, surface_volume()): the export asks for it twice
         self.level = 0 if self.fc.coarse_fraction > 0 and self.fc.coarse_resolution < self.fc.resolution else 1
         self.grid, self.free = self._initial(self.fc.coarse_resolution if self.level == 0 else self.fc.resolution)
         # lit pairs whose light came from another surface in the pixel: the start field carved from where their
@@ -330,6 +293,13 @@ class FastModel(ReconstructionModel):
         voxel across a ramp); `fast.mesh_hull_inset_voxels` places the surface between a saturated occupied
         voxel and a saturated free one (the shadow hull's binary boundary, which the ramp never reached)
         that far inside the midpoint (see `binary_boundary_inset`)."""
+        key = (self.grid, self.grid.raw._version, self.thin_parts, repr(self.fc))
+        if self._surface_field is None or not _same_key(self._surface_field[0], key):
+            self._surface_field = (key, self._surface_field_of_grid())     # (free_evidence asks first, the export next)
+        vol, level = self._surface_field[1]
+        return vol.copy(), level
+
+    def _surface_field_of_grid(self):
         slope = max(self.fc.surface_slope, 1.0)
         level = surface_offset(self.grid.density_scale, self.grid.box.voxel, slope) \
             + self.fc.mesh_level_shift_voxels * slope
@@ -365,7 +335,7 @@ class FastModel(ReconstructionModel):
         return out
 
     def params_finite(self) -> bool:
-        return bool(torch.isfinite(self.grid.raw).all())
+        return all_finite(self.grid.raw)
 
     def state_dict(self):
         return {"level": self.level, "raw": self.grid.raw.detach().clone(),
@@ -394,13 +364,9 @@ class FastModel(ReconstructionModel):
         self.optimizer.load_state_dict(st["optimizer"])
 
 
-def rendered_depth(r, far, min_opacity):
-    """Per-ray depth of a render `r`: the expected depth with the missing opacity placed at `far`
-    (`min_opacity` None), or the opacity-normalised depth, inf where the opacity stays below `min_opacity`."""
-    if min_opacity is None:
-        return r.depth + (1.0 - r.opacity) * far
-    d = r.depth / r.opacity.clamp(min=1e-10)
-    return torch.where(r.opacity >= min_opacity, d, torch.full_like(d, float("inf")))
+def _same_key(a, b) -> bool:
+    """Keys of `FastModel.surface_volume`: the same grid and thin-part objects, unchanged since, the same settings."""
+    return a[0] is b[0] and a[1] == b[1] and a[2] is b[2] and a[3] == b[3]
 
 
 def build_fast(data: RayData, cfg: FitConfig, meas_meta: dict, generator: torch.Generator):

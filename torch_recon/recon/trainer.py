@@ -21,7 +21,7 @@ import torch
 
 from ..contract.errors import CheckpointError
 from .config import FitConfig
-from .losses import in_warmup
+from .losses import all_finite, in_warmup
 
 CHECKPOINT_NAME = "checkpoint.pt"
 SNAPSHOT_EVERY = 10
@@ -144,7 +144,7 @@ def train(model, data, cfg: FitConfig, gen: torch.Generator, out_dir=None, on_ev
             if ok:
                 model.optimizer.zero_grad(set_to_none=True)
                 loss.backward()
-                ok = all(p.grad is None or bool(torch.isfinite(p.grad).all())
+                ok = all(p.grad is None or all_finite(p.grad)
                          for g in model.optimizer.param_groups for p in g["params"])
                 if ok:
                     model.optimizer.step()
