@@ -1,4 +1,5 @@
-"""The two reconstructors behind one interface (`ReconstructionModel`); both use the paper's losses.
+"""The fast reconstructor (`FastModel`) behind the interface both reconstructors share
+(`model_interface.ReconstructionModel`; the platonerf one: platonerf_model.py); both use the paper's losses.
 
 A model owns its field(s) and optimiser and exposes: `loss(idx, step, total, gen)`, `before_step`,
 `after_step`, `render_depth(origins, dirs)` (evaluation, no grad), `density_volume()` (for the mesh) and
@@ -18,7 +19,7 @@ from .fields import DensityGrid, GridBox
 from .hull_subvoxel import SHRINK_ITERATIONS, binary_boundary_inset, shrinkable_hull
 from .init import grid_bbox, in_view, initial_grid
 from .losses import all_finite
-from .model_interface import ReconstructionModel, pair_loss, rendered_depth  # noqa: F401 (platonerf_model, tests)
+from .model_interface import ReconstructionModel, pair_loss, rendered_depth
 from .renderer import render_pruned
 from .sampler import ray_box
 from .smoothness import NormalConsistencyPrior

@@ -24,7 +24,7 @@ from .data import RayData
 from .fields import GridBox, NeRFField
 from .init import scene_bbox
 from .losses import distance_loss, in_warmup, shadow_loss
-from .models import ReconstructionModel, rendered_depth
+from .model_interface import ReconstructionModel, rendered_depth
 from .platonerf_render import render_hierarchical
 
 

@@ -127,7 +127,7 @@ def test_coarse_to_fine_with_the_anchor_builds_the_fine_start_once(meas, monkeyp
 
 
 def test_every_model_has_the_trainer_interface():
-    from torch_recon.recon.models import ReconstructionModel
+    from torch_recon.recon.model_interface import ReconstructionModel
     from torch_recon.recon.platonerf_model import PlatoNeRFModel
 
     assert issubclass(FastModel, ReconstructionModel) and issubclass(PlatoNeRFModel, ReconstructionModel)
