@@ -191,7 +191,7 @@ def oracle_surface_volume(sd: np.ndarray, voxel: float, fast_config):
     box = GridBox.exact(np.zeros(3), voxel, sd.shape)
     grid = DensityGrid.from_xyz(box, torch.from_numpy(raw.astype(np.float32)), fc.density_scale)
     # no measured thin parts here: the export's hull inset (the fit's setting) spares none
-    return FastModel.surface_volume(types.SimpleNamespace(fc=fc, grid=grid, thin_parts=None))
+    return FastModel.build_surface_volume(types.SimpleNamespace(fc=fc, grid=grid, thin_parts=None))
 
 
 def export_oracle(sd, box, fit_config, out_path, smooth_iterations=None, min_island_fraction=None, metadata=None):

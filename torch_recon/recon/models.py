@@ -296,11 +296,13 @@ class FastModel(ReconstructionModel):
         that far inside the midpoint (see `binary_boundary_inset`)."""
         key = (self.grid, self.grid.raw._version, self.thin_parts, repr(self.fc))
         if self._surface_field is None or not _same_key(self._surface_field[0], key):
-            self._surface_field = (key, self._surface_field_of_grid())     # (free_evidence asks first, the export next)
+            self._surface_field = (key, self.build_surface_volume())     # (free_evidence asks first, the export next)
         vol, level = self._surface_field[1]
         return vol.copy(), level
 
-    def _surface_field_of_grid(self):
+    def build_surface_volume(self):
+        """`surface_volume` built afresh, not cached (needs only `fc`, `grid`, `thin_parts`: the representation
+        oracle calls it on a namespace holding a ground-truth grid)."""
         slope = max(self.fc.surface_slope, 1.0)
         level = surface_offset(self.grid.density_scale, self.grid.box.voxel, slope) \
             + self.fc.mesh_level_shift_voxels * slope

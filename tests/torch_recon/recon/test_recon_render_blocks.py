@@ -96,8 +96,8 @@ def test_surface_volume_is_built_once_per_field_and_settings():
     meas = box_floor_measurements(32)
     cfg = small_config(steps=1)
     model = FastModel(build_ray_data(meas), cfg, _meta(meas))
-    with mock.patch.object(FastModel, "_surface_field_of_grid", autospec=True,
-                           side_effect=FastModel._surface_field_of_grid) as built:
+    with mock.patch.object(FastModel, "build_surface_volume", autospec=True,
+                           side_effect=FastModel.build_surface_volume) as built:
         vol0, level0 = model.surface_volume()
         vol0[:] = 0.0                           # a caller's change stays its own
         vol1, level1 = model.surface_volume()
