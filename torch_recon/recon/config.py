@@ -167,9 +167,9 @@ class FitConfig:
         if not (isinstance(self.fast.mesh_hull_flat_patch_faces, int) and self.fast.mesh_hull_flat_patch_faces >= 1):
             raise SettingsError("fast.mesh_hull_flat_patch_faces",
                                 f"expected a face count >= 1, got {self.fast.mesh_hull_flat_patch_faces}")
-        if self.fast.mesh_hull_lit_fan and not (self.fast.mesh_hull_flat_approach and self.fast.mesh_hull_shrink_voxels > 0):
-            raise SettingsError("fast.mesh_hull_lit_fan", "needs fast.mesh_hull_flat_approach and "
-                                                          "fast.mesh_hull_shrink_voxels > 0 (it is placed in that step)")
+        if self.fast.mesh_hull_lit_fan and not self.fast.mesh_hull_shrink_voxels > 0:
+            raise SettingsError("fast.mesh_hull_lit_fan", "needs fast.mesh_hull_shrink_voxels > 0 (it shapes the hull "
+                                                          "that setting makes shrinkable)")
         if self.fast.mesh_hull_shrink_graze_samples < 0:
             raise SettingsError("fast.mesh_hull_shrink_graze_samples",
                                 f"expected an integer >= 0 (0: no shadow-edge exception), got "

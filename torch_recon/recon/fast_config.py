@@ -250,7 +250,8 @@ class FastConfig:
                                           # nearest pair seen from the spot lit and reaching past the point; carved ones
                                           # capped at 0.4, hull ones at least 0.55; recon/lit_fans.py), not whole voxels:
                                           # the light between the pixels' segments, as session 15's oracle hull. Needs
-                                          # mesh_hull_flat_approach. Session 16, F@2cm / hidden R / spurious: organic-
+                                          # mesh_hull_shrink_voxels > 0; without mesh_hull_flat_approach the flat
+                                          # patches get fans too (organic 0.793 / 0.764: worse). Session 16, F@2cm / hidden R / spurious: organic-
                                           # occluded 0.808 / 0.781 / 1.21 % -> 0.814 / 0.790 / 1.31 % (blob hidden R
                                           # 0.657 -> 0.676, normals 0.895 -> 0.898), thin-structures hidden R 0.865 ->
                                           # 0.861 (the lamp): opt-in, +1-3 s of export (docs/reconstruction.md); false: off

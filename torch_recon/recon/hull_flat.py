@@ -137,20 +137,18 @@ def flat_face_offsets(flat, free, cells, approach, voxel: float) -> np.ndarray:
     return out
 
 
-def flat_patches_inward(model, inward) -> None:
+def flat_patches_inward(model, inward) -> np.ndarray:
     """Set how far the faces of the flat patches of a fast model's `mesh_export.InwardSmoothing` `inward` (its
     `movable` hull) first move (`face_offsets_m`; `fast.mesh_hull_flat_approach`: the light's gap, marched on the
-    start field's lit segments); with `fast.mesh_hull_lit_fan` its boundary voxels' occupancy too."""
+    start field's lit segments). Returns the flat patches' voxels (bool (nx, ny, nz))."""
     from .hull_subvoxel import carving_segments
 
     fc, box = model.fc, model.grid.box
     free = (model._start_raw <= fc.raw_free + 1e-3).cpu().numpy()
     flat = flat_patch_voxels(inward.movable, free, fc.mesh_hull_flat_patch_faces)
-    if fc.mesh_hull_lit_fan:        # the rest of the hull's boundary by the lit fans' share (lit_fans.py)
-        from .lit_fans import hull_occupancy
-        hull_occupancy(model, inward, flat)
     if not flat.any():        # (cave-chair: its hull's faces are small or beside the light)
-        return
+        return flat
     cells = (F.max_pool3d(torch.as_tensor(flat)[None, None].float(), 3, 1, 1)[0, 0] > 0) & torch.as_tensor(free)
     approach = light_approach(box, *carving_segments(model, lit=True), cells.to(box.bbox_min.device))
     inward.face_offsets_m = flat_face_offsets(flat, free, cells.numpy(), approach.cpu().numpy(), box.voxel)
+    return flat

@@ -332,9 +332,13 @@ class FastModel(ReconstructionModel):
         movable = shrinkable_hull(self, self._start_raw, self.evidence, self.fc.mesh_hull_shrink_graze_samples, saturated)
         out = InwardSmoothing(movable.cpu().numpy(), self.fc.mesh_hull_shrink_voxels * self.grid.box.voxel,
                               SHRINK_ITERATIONS)
+        flat = None
         if self.fc.mesh_hull_flat_approach:     # hull_flat.py
             from .hull_flat import flat_patches_inward
-            flat_patches_inward(self, out)
+            flat = flat_patches_inward(self, out)
+        if self.fc.mesh_hull_lit_fan:           # the rest of the hull's boundary by the lit fans' share (lit_fans.py)
+            from .lit_fans import hull_occupancy
+            hull_occupancy(self, out, flat)
         return out
 
     def params_finite(self) -> bool:

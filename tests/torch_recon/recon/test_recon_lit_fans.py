@@ -93,8 +93,10 @@ def test_the_fitted_box_scene_places_its_hull_boundary_between_voxel_faces():
     assert len(mesh.faces) > 100 and np.all(np.isfinite(mesh.vertices))
 
 
-def test_lit_fan_is_opt_in_and_needs_the_flat_step():
+def test_lit_fan_is_opt_in_and_needs_the_shrinkable_hull():
     assert not FitConfig(mode="fast").fast.mesh_hull_lit_fan
     assert override(FitConfig(mode="fast"), ["fast.mesh_hull_lit_fan=true"]).fast.mesh_hull_lit_fan
+    assert override(FitConfig(mode="fast"), ["fast.mesh_hull_lit_fan=true",          # the flat patches get fans too
+                                             "fast.mesh_hull_flat_approach=false"]).fast.mesh_hull_lit_fan
     with pytest.raises(SettingsError, match="fast.mesh_hull_lit_fan"):
-        override(FitConfig(mode="fast"), ["fast.mesh_hull_lit_fan=true", "fast.mesh_hull_flat_approach=false"])
+        override(FitConfig(mode="fast"), ["fast.mesh_hull_lit_fan=true", "fast.mesh_hull_shrink_voxels=0"])
