@@ -61,6 +61,21 @@ class GridBox:
         return torch.stack(torch.meshgrid(*axes, indexing="ij"), -1)
 
 
+def shifted(mask: torch.Tensor, offset, fill: bool = False, pad: int = 1) -> torch.Tensor:
+    """mask[v + offset] for every voxel v of a bool (nx, ny, nz) `mask` (offset: 3 ints, each within `pad`); `fill`
+    outside the box."""
+    p = F.pad(mask.float()[None, None], (pad,) * 6, value=float(fill))[0, 0]
+    sl = tuple(slice(pad + o, pad + o + n) for o, n in zip(offset, mask.shape))
+    return p[sl] > 0.5
+
+
+def beside_ramp(clipped: torch.Tensor, level: float, half: float) -> torch.Tensor:
+    """Voxels with a 6-neighbour on a measured surface's outer ramp (raw between the saturated free value and the
+    level) of the mesh field `clipped` (raw clipped to [level - half, level + half]): lowering such a voxel to move a
+    hull's or a sheet's face would move that measured surface too."""
+    return next_to((clipped > level - half + 1e-4) & (clipped < level))
+
+
 def next_to(mask: torch.Tensor) -> torch.Tensor:
     """Voxels with a 6-neighbour in `mask` (nx, ny, nz) bool."""
     p = F.pad(mask.float()[None, None], (1,) * 6)[0, 0]

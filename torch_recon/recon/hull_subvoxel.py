@@ -16,10 +16,9 @@ same march: session 14, issue 11), not marched again at export.
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 
 from .data import lit_path_tolerance, unexplained_lit
-from .fields import next_to
+from .fields import beside_ramp, next_to, shifted
 from .hull_trim import sole_blockers
 from .sampler import ray_box
 from .segment_crossings import accumulate_crossings, pair_segments
@@ -114,14 +113,10 @@ def binary_boundary_inset(clipped, level: float, half: float, inset_voxels: floa
     clipped: (nx, ny, nz) raw density clipped to [level - half, level + half]."""
     occ = clipped >= level + half - 1e-4
     m = 1 + max(int(max_thickness_voxels), 0)
-    pad = lambda b: F.pad(b.float()[None, None], (m,) * 6)[0, 0] > 0     # noqa: E731
-    free = pad(clipped <= level - half + 1e-4)
-    ramp = pad((clipped > level - half + 1e-4) & (clipped < level))      # a measured surface's outer ramp
+    free = clipped <= level - half + 1e-4
 
-    def at(mask, axis, t):      # mask[v + t e_axis] for every voxel v
-        sl = [slice(m, m + n) for n in clipped.shape]
-        sl[axis] = slice(m + t, m + t + clipped.shape[axis])
-        return mask[tuple(sl)]
+    def at(mask, axis, t):      # mask[v + t e_axis] for every voxel v (False outside the box)
+        return shifted(mask, [t if a == axis else 0 for a in range(3)], False, m)
 
     lower = torch.zeros_like(occ)
     for axis in range(3):
@@ -136,9 +131,7 @@ def binary_boundary_inset(clipped, level: float, half: float, inset_voxels: floa
                     run = run & ~after
                 face = face & thin      # (not in place: `at` gives views of the masks)
             lower |= face
-    for axis in range(3):       # lowering a voxel next to a measured surface would move that surface too
-        for sign in (-1, 1):
-            lower &= ~at(ramp, axis, sign)
+    lower &= ~beside_ramp(clipped, level, half)      # (that measured surface would move too)
     lower &= occ if keep is None else occ & ~keep.to(occ.device)
     out = clipped.clone()
     out[lower] = level - half + half / (0.5 + inset_voxels)

@@ -14,16 +14,8 @@ emptying them (opacity still 1): a voxel counts as occupied here when above the 
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 
-from .fields import next_to
-
-
-def _shifted(mask: torch.Tensor, offset, fill: bool, pad: int = 1) -> torch.Tensor:
-    """mask[v + offset] for every voxel v (offset: 3 ints, each within `pad`); `fill` outside the box."""
-    p = F.pad(mask.float()[None, None], (pad,) * 6, value=float(fill))[0, 0]
-    sl = tuple(slice(pad + o, pad + o + n) for o, n in zip(offset, mask.shape))
-    return p[sl] > 0.5
+from .fields import beside_ramp, shifted
 
 
 def one_voxel_sheets(occupied: torch.Tensor, free: torch.Tensor, min_in_plane: int, max_run: int = 1) -> torch.Tensor:
@@ -40,9 +32,9 @@ def one_voxel_sheets(occupied: torch.Tensor, free: torch.Tensor, min_in_plane: i
                     continue
                 off = [0, 0, 0]
                 off[others[0]], off[others[1]] = i, j
-                in_plane += _shifted(occupied, off, False, max_run).int()
+                in_plane += shifted(occupied, off, False, max_run).int()
         for sign in (-1, 1):
-            along = lambda m, t, fill: _shifted(m, [sign * t if a == axis else 0 for a in range(3)], fill, max_run)  # noqa: E731
+            along = lambda m, t, fill: shifted(m, [sign * t if a == axis else 0 for a in range(3)], fill, max_run)  # noqa: E731
             run, thin = along(free, -1, True), torch.zeros_like(occupied)
             for t in range(1, max_run + 1):
                 thin |= run & along(free, t, True)
@@ -64,8 +56,7 @@ def sheet_inset(clipped: torch.Tensor, level: float, half: float, inset_voxels: 
     free = clipped <= level - half + 1e-4
     if seen is not None:
         free = free & ~seen.to(free.device)
-    ramp = (clipped > level - half + 1e-4) & (clipped < level)
-    lower = one_voxel_sheets(occ, free, min_in_plane, max_run) & ~next_to(ramp)
+    lower = one_voxel_sheets(occ, free, min_in_plane, max_run) & ~beside_ramp(clipped, level, half)
     if keep is not None:
         lower &= ~keep.to(lower.device)
     out = clipped.clone()
