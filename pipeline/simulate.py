@@ -84,7 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--resolution", type=int, metavar="N", help=f"an N x N sensor (sets width and height) "
                     f"[default {d.width} x {d.height} px]")
     ap.add_argument("--time-gate", type=int, metavar="W", help="keep a window of W bins around the expected "
-                    f"return; 0: off (sets time_gate and gate_window_bins) [default off]")
+                    "return; 0: off (sets time_gate and gate_window_bins) [default off]")
     ap.add_argument("--spot-list", help="explicit laser targets 'x,y,z;x,y,z;...' (world, m); write "
                     "--spot-list=-2,3,0 when the first number is negative (sets spots) [default: the scene's "
                     "spots, else random ones]")

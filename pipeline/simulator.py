@@ -14,7 +14,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass

@@ -14,6 +14,7 @@ import numpy as np
 
 from pipeline import blender_scene as bs
 from pipeline import transient_binning
+from pipeline.pulse_kernel import PulseKernel
 from pipeline.neighbourhood import maximum_filter3, minimum_filter3
 from pipeline.cycles_render import EMITTER_OFFSET_M
 from torch_recon.contract import spots
@@ -154,7 +155,7 @@ def window_bins_bound(plans, sensor, geometry, footprint_m: float, neighbourhood
     Also checks, before any rendering, that every path that could be lit (the sample faces l
     and l faces the sample) fits the bin range. float32 (+2 bins of margin): it is a bound.
     """
-    kernel = transient_binning.PulseKernel(sensor)
+    kernel = PulseKernel(sensor)
     pos, nrm, _, valid = geometry
     f32 = np.float32
     to_camera = np.linalg.norm(pos - sensor.sensor_origin.astype(f32), axis=-1)   # spot-independent

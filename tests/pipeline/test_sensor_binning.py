@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from pipeline.transient_binning import (FAST_SPREAD_BINS, PulseKernel, bin_two_bounce, count_out_of_range,
+from pipeline.pulse_kernel import PulseKernel
+from pipeline.transient_binning import (FAST_SPREAD_BINS, bin_two_bounce, count_out_of_range,
                                         expected_return_path, first_bounce_path, optical_path)
 from torch_recon.contract.analytic import pulse_bin_weights
 from torch_recon.contract.dataset import PulseSpec, SensorSpec
@@ -219,7 +220,8 @@ def test_threads_give_identical_bytes():
 def test_bin_windows_is_the_tabulated_pulse_of_every_sample(shape):
     """Each sample adds amp x its tabulated pulse weights into its pixel's window, tails past the range cut
     (a per-sample reference loop; windows placed into the (P, T) cube)."""
-    from pipeline.transient_binning import PULSE_SUPPORT_SIGMAS, TABLE_STEPS, bin_windows
+    from pipeline.pulse_kernel import PULSE_SUPPORT_SIGMAS, TABLE_STEPS
+    from pipeline.transient_binning import bin_windows
     sensor = make_sensor(w=4, h=3, bins=30, shape=shape)
     kernel = PulseKernel(sensor)
     rng = np.random.default_rng(7)
