@@ -130,7 +130,8 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
                   nearest_surface: bool = False, seen_free=None, thin_part_edges: bool = True,
                   thin_part_centre: str = "off", explain_lead_voxels: float = 0.0, thin_points=None,
                   lit_path_tolerance_m: float = 0.0, explain_neighbour_power: float = 0.0,
-                  explain_shared_cluster_voxels: int = 0, explain_measured_scale_voxels: float = 0.0):
+                  explain_shared_cluster_voxels: int = 0, explain_measured_scale_voxels: float = 0.0,
+                  measured_points=None):
     """`VoxelEvidence`: per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
     blocker of a shadowed segment (with `explain_shadow_rays`), 6 a part under a pixel wide (with
     `nearest_surface`: `thin_part_points`), and the voxels lit segments cross; and the count of shadowed secondary
@@ -143,7 +144,8 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     explain_neighbour_power > 0: a restored blocker is looked for next to what stayed occupied (`blocker_weight`).
     explain_shared_cluster_voxels > 0: blockers in clusters at least this large are shared (`shared_blockers`).
     explain_measured_scale_voxels > 0: a restored blocker is looked for where the segment passes nearest to the measured
-    surface points, visible and thin parts' (`MeasuredSurfacePoints`, this scale in voxels)."""
+    surface points, visible and thin parts' (`MeasuredSurfacePoints`, this scale in voxels); measured_points (N, 3):
+    the visible points to use (the start field leaves out the room's bounding planes), else every pixel's."""
     dev = data.pixel_dirs.device
     n = int(np.prod(box.shape))
     step = step_voxels * box.voxel
@@ -202,7 +204,8 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
         weight = blocker_weight(label.reshape(box.shape), explain_neighbour_power)
         measured = None
         if explain_measured_scale_voxels > 0:
-            pts = x_all[okx] if thin_points is None else torch.cat([x_all[okx], thin_points.to(x_all)])
+            pts = x_all[okx] if measured_points is None else measured_points.to(x_all)
+            pts = pts if thin_points is None else torch.cat([pts, thin_points.to(x_all)])
             measured = MeasuredSurfacePoints(pts, explain_measured_scale_voxels * box.voxel)
         if explain_camera_free:     # a part thinner than a pixel: the pixel ray saw past it
             explain_shadows(box, label, lit_count + cam_free, shadow_count, *seg, step, restorable=(2, 3),
@@ -215,7 +218,7 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
 
 
 def configured_evidence_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float, seen_free=None,
-                             count_shadow: bool = False, thin_points=None):
+                             count_shadow: bool = False, thin_points=None, measured_points=None):
     """`evidence_grid` with a FastConfig's settings: the one place that maps the settings onto its arguments
     (the start field and the spot advisor both label voxels this way)."""
     return evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m,
@@ -229,5 +232,6 @@ def configured_evidence_grid(data: RayData, box: GridBox, cfg, secondary_offset_
                          lit_path_tolerance_m=lit_path_tolerance(data, box.voxel, cfg.lit_path_tolerance_voxels),
                          explain_neighbour_power=cfg.explain_neighbour_power,
                          explain_shared_cluster_voxels=cfg.explain_shared_cluster_voxels,
-                         explain_measured_scale_voxels=cfg.explain_measured_scale_voxels)
+                         explain_measured_scale_voxels=cfg.explain_measured_scale_voxels,
+                         measured_points=measured_points)
 
