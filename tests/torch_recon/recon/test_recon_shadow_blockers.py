@@ -154,7 +154,8 @@ def test_the_blocker_goes_where_the_leg_was_measured_not_beside_it(scale, expect
     shadow = torch.zeros(box.shape, dtype=torch.long)
     lit = torch.zeros(box.shape, dtype=torch.long)
     shadow[5, 5, 5], lit[5, 5, 5], shadow[6, 5, 5] = 8, 1, 6
-    seg = (torch.tensor([[0.05, 0.55, 0.55]]), torch.tensor([[1.0, 0.0, 0.0]]), torch.tensor([0.0]), torch.tensor([0.9]))
+    seg = (torch.tensor([[0.05, 0.55, 0.55]]), torch.tensor([[1.0, 0.0, 0.0]]), torch.tensor([0.0]),
+           torch.tensor([0.9]))
     measured = (MeasuredSurfacePoints(torch.tensor([[0.58, 0.55, 0.55], [0.1, 0.1, 0.9], [float("nan")] * 3]), scale)
                 if scale > 0 else None)
     n = explain_shadows(box, flat, lit.reshape(-1), shadow.reshape(-1), *seg, 0.05, measured=measured)
