@@ -131,6 +131,10 @@ class FitConfig:
         if self.fast.explain_shared_cluster_voxels < 0:
             raise SettingsError("fast.explain_shared_cluster_voxels",
                                 f"expected a count of voxels >= 0 (0: off), got {self.fast.explain_shared_cluster_voxels}")
+        scale = self.fast.explain_measured_scale_voxels
+        if not (math.isfinite(scale) and scale >= 0):
+            raise SettingsError("fast.explain_measured_scale_voxels",
+                                f"expected voxels >= 0 (0: off), got {self.fast.explain_measured_scale_voxels}")
         if not self.fast.explain_lead_voxels >= 0:
             raise SettingsError("fast.explain_lead_voxels",
                                 f"expected voxels >= 0 (0: off), got {self.fast.explain_lead_voxels}")

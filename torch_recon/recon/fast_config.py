@@ -87,6 +87,17 @@ class FastConfig:
                                       # Session 16, 200 (only thin-structures' shade is that large): thin-structures
                                       # F@2cm / hidden R 0.838 / 0.865 -> 0.845 / 0.853 (lamp P 0.667 -> 0.702, hidden
                                       # R 0.827 -> 0.802: right wall voxels go with the lumps): opt-in; 0: off
+    explain_measured_scale_voxels: float = 0.0  # > 0: a shadowed segment's blocker ranks by shadowed / lit crossings
+                                      # over 1 + (its sample's distance to the nearest measured surface point, visible
+                                      # or a thin part's) / this many voxels (shadow_blockers.MeasuredSurfacePoints): a
+                                      # leg the carving took holds its measured points, the voxel beside it in the
+                                      # leg's own shadow (fewer lit crossings) does not; the room's bounding planes'
+                                      # points are left out (blockers slid onto the floor beside a foot). Session 17,
+                                      # 0.5, six scenes F@2cm / hidden R: cave-chair 0.944 / 0.920 -> 0.950 / 0.954
+                                      # (chair F@1cm 0.707 -> 0.721, normals 0.820 -> 0.816), curved-wall +0.006 /
+                                      # +0.005, outside-fov +0.008 / +0.027; thin-structures hidden R 0.865 -> 0.854
+                                      # (a table leg's column breaks under its top), organic-occluded spurious 1.21 ->
+                                      # 1.36 %: opt-in; 0: off
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
     lit_path_tolerance_voxels: float = 1.0  # > 0: a lit pair whose measured path is farther than this (voxels; at
                                       # least half a time bin) from the path through its pixel's visible point x got

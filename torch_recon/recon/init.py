@@ -130,16 +130,23 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     from .beyond_view import lit_side_of_hull, out_of_view_spots, unneeded_beside_view
     from .unobserved import bounding_planes, on_planes, shell_signed_distance
 
-    evidence, shadow_count = configured_evidence_grid(data, box, cfg, secondary_offset_m, seen_free,
-                                                      count_shadow=cfg.trim_hull_voxels > 0, thin_points=thin_points)
-    label = evidence.label
-    free = (label == 2) | (label == 3)
-    dev = data.pixel_dirs.device
     surface = visible_surface(data, box) if surface is None else surface
     planes = (bounding_planes(*surface, data.sensor_origin.cpu().numpy(), data.spot_points.cpu().numpy(),
                               cfg.plane_tolerance_voxels * box.voxel, cfg.plane_min_support)
               if (cfg.complete_unobserved and view is not None) or cfg.trim_hull_voxels > 0
               or cfg.surface_concave_corners == "planes" else [])
+    measured = None
+    if cfg.explain_measured_scale_voxels > 0:
+        # the objects' measured points, not the room's bounding planes: beside a chair's foot every candidate is as
+        # near the floor's points, and blockers slid down onto it (session 17)
+        pts = np.asarray(surface[0])
+        measured = torch.as_tensor(pts[~on_planes(pts, surface[1], planes, cfg.plane_tolerance_voxels * box.voxel)])
+    evidence, shadow_count = configured_evidence_grid(data, box, cfg, secondary_offset_m, seen_free,
+                                                      count_shadow=cfg.trim_hull_voxels > 0, thin_points=thin_points,
+                                                      measured_points=measured)
+    label = evidence.label
+    free = (label == 2) | (label == 3)
+    dev = data.pixel_dirs.device
     corners = cfg.surface_concave_corners
     sd = (surface_signed_distance(data, box, cfg.surface_half_width_voxels, surface=surface,
                                   concave_corners=corners != "off",

@@ -36,12 +36,7 @@ def marching_cells(box: GridBox, origins, dirs, near, far, step, chunk_samples: 
         n = min(n_all, int(float(span[order[i]]) / step) + 2)
         rays = order[i:i + max(1, chunk_samples // n)]
         i += len(rays)
-        nr, fr = near[rays, None], far[rays, None]
-        t0 = nr + k_all[:n] * step
-        t1 = torch.minimum(t0 + step, fr)
-        t0 = torch.minimum(t0, fr)
-        keep = t1 > t0
-        mid = 0.5 * (t0 + t1)
+        keep, mid = marching_midpoints(near[rays], far[rays], step, k_all[:n])
         o, d = origins[rays], dirs[rays]
         flat, inside = None, []
         for axis, (size, stride) in enumerate(((nx, 1), (ny, ny), (nz, nz))):
@@ -57,6 +52,16 @@ def marching_cells(box: GridBox, origins, dirs, near, far, step, chunk_samples: 
                 f = f.double()
             flat = f if flat is None else flat.mul_(stride).add_(f)
         yield (rays, flat, keep, torch.stack(inside, -1)) if positions else (rays, flat, keep)
+
+
+def marching_midpoints(near, far, step, k):
+    """The marching samples of segments (R,) from `near` to `far` at `step`, sample numbers `k` (n,): whether each
+    interval is non-empty (R, n) and its midpoint's distance along the segment (R, n; `marching_cells`' samples)."""
+    fr = far[:, None]
+    t0 = near[:, None] + k * step
+    t1 = torch.minimum(t0 + step, fr)
+    t0 = torch.minimum(t0, fr)
+    return t1 > t0, 0.5 * (t0 + t1)
 
 
 def accumulate_crossings(box: GridBox, origins, dirs, near, far, step, counts, chunk_samples=1 << 20, core: float = 0.5):

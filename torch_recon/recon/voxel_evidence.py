@@ -22,8 +22,8 @@ from .data import RayData, lit_path_tolerance, pixel_angle, unexplained_lit
 from .fields import GridBox
 from .sampler import ray_box
 from .segment_crossings import accumulate_crossings, marching_cells, pair_segments, segment_counts, spot_crossings
-from .shadow_blockers import blocker_weight, shared_blockers
-from .thin_parts import thin_part_voxels
+from .shadow_blockers import MeasuredSurfacePoints, blocker_weight, shared_blockers
+from .thin_parts import thin_part_cloud, thin_part_voxels
 
 #: evidence label of a carved voxel put back because a shadowed segment needs a blocker there
 RESTORED = 4
@@ -49,7 +49,7 @@ class VoxelEvidence:
 
 def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count, origins, dirs, near, far, step,
                     restorable=(3,), chunk_samples: int = 1 << 20, score=None, lead: float = 0.0,
-                    weight=None, shared_cluster_voxels: int = 0) -> int:
+                    weight=None, shared_cluster_voxels: int = 0, measured=None) -> int:
     """Make every shadowed segment blocked (in place on the flat `label`): a shadowed segment whose voxels
     were all carved free gets back the carved voxel along it with the most shadowed and fewest free
     crossings (shadow / (lit + 1)). Carving through whole voxels takes thin parts
@@ -61,8 +61,9 @@ def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count,
     skip next to x; without the lead the blocker lands on the first voxel past the offset, beside the
     part. `weight` (flat, float > 0): multiplies the ranking (`shadow_blockers.blocker_weight`).
     `shared_cluster_voxels` > 0: a segment whose pick lies in a cluster of at least that many restored voxels takes
-    the pick on its path that most segments made (`shadow_blockers.shared_blockers`). Returns the number of voxels
-    restored."""
+    the pick on its path that most segments made (`shadow_blockers.shared_blockers`). `measured`
+    (`shadow_blockers.MeasuredSurfacePoints`): the ranking divided by how far each sample lies from the measured
+    surface points (a blocker where a measured part is). Returns the number of voxels restored."""
     if origins.shape[0] == 0:
         return 0
     if score is None:
@@ -73,13 +74,15 @@ def explain_shadows(box: GridBox, label: torch.Tensor, free_count, shadow_count,
     can[list(restorable)] = True
     lead = min(max(float(lead), 0.0), float(near.min()))
     picked, paths = [], []
-    for _, flat, keep in marching_cells(box, origins, dirs, near - lead, far, step, chunk_samples):
+    for rays, flat, keep in marching_cells(box, origins, dirs, near - lead, far, step, chunk_samples):
         flat = flat.where(keep, 0.0).long()
         lab = label[flat]
         past = torch.arange(flat.shape[1], device=flat.device)[None] * step >= lead - 1e-6
         blocked = (keep & past & (lab != 2) & (lab != 3)).any(1)
         cand = keep & can[lab.long()] & ~blocked[:, None]
         sc = torch.where(cand, score[flat], torch.full_like(flat, -1, dtype=score.dtype))
+        if measured is not None:
+            sc = measured.rank(sc, cand, origins[rays], dirs[rays], near[rays] - lead, far[rays], step)
         best, j = sc.max(1)
         ok = best >= 0
         picked.append(flat[ok].gather(1, j[ok, None]).squeeze(1))
@@ -127,7 +130,8 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
                   nearest_surface: bool = False, seen_free=None, thin_part_edges: bool = True,
                   thin_part_centre: str = "off", explain_lead_voxels: float = 0.0, thin_points=None,
                   lit_path_tolerance_m: float = 0.0, explain_neighbour_power: float = 0.0,
-                  explain_shared_cluster_voxels: int = 0):
+                  explain_shared_cluster_voxels: int = 0, explain_measured_scale_voxels: float = 0.0,
+                  measured_points=None):
     """`VoxelEvidence`: per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
     blocker of a shadowed segment (with `explain_shadow_rays`), 6 a part under a pixel wide (with
     `nearest_surface`: `thin_part_points`), and the voxels lit segments cross; and the count of shadowed secondary
@@ -138,7 +142,10 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     lit_path_tolerance_m > 0: a lit pair whose path disagrees with its pixel's visible point by more carves from
     where its own path puts the surface on the pixel ray (`unexplained_lit`).
     explain_neighbour_power > 0: a restored blocker is looked for next to what stayed occupied (`blocker_weight`).
-    explain_shared_cluster_voxels > 0: blockers in clusters at least this large are shared (`shared_blockers`)."""
+    explain_shared_cluster_voxels > 0: blockers in clusters at least this large are shared (`shared_blockers`).
+    explain_measured_scale_voxels > 0: a restored blocker is looked for where the segment passes nearest to the measured
+    surface points, visible and thin parts' (`MeasuredSurfacePoints`, this scale in voxels); measured_points (N, 3):
+    the visible points to use (the start field leaves out the room's bounding planes), else every pixel's."""
     dev = data.pixel_dirs.device
     n = int(np.prod(box.shape))
     step = step_voxels * box.voxel
@@ -169,7 +176,9 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     nearest = torch.zeros(n, dtype=torch.bool, device=dev)
     if nearest_surface and data.nearest_depth is not None:
         # the nearest surface of a pixel whose strongest return lies behind it: a part thinner than the pixel
-        nearest = thin_part_voxels(data, box, thin_part_edges, thin_part_centre, thin_points).reshape(-1)
+        if thin_points is None:
+            thin_points = thin_part_cloud(data, box.voxel, thin_part_edges, thin_part_centre)
+        nearest = thin_part_voxels(data, box, points=thin_points).reshape(-1)
     # shadow carving: lit pairs on the carving pixels only; shadowed pairs count occluder evidence
     on_sub = torch.zeros(data.height * data.width, dtype=torch.bool, device=dev)
     on_sub[sub] = True
@@ -193,17 +202,23 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
                      / (spot_crossings(data, box, data.lit & on_sub[data.pair_pixel], off, step, carve_core) + 1.0))
         lead = explain_lead_voxels * box.voxel
         weight = blocker_weight(label.reshape(box.shape), explain_neighbour_power)
+        measured = None
+        if explain_measured_scale_voxels > 0:
+            pts = x_all[okx] if measured_points is None else measured_points.to(x_all)
+            pts = pts if thin_points is None else torch.cat([pts, thin_points.to(x_all)])
+            measured = MeasuredSurfacePoints(pts, explain_measured_scale_voxels * box.voxel)
         if explain_camera_free:     # a part thinner than a pixel: the pixel ray saw past it
             explain_shadows(box, label, lit_count + cam_free, shadow_count, *seg, step, restorable=(2, 3),
-                            score=score, lead=lead, weight=weight, shared_cluster_voxels=explain_shared_cluster_voxels)
+                            score=score, lead=lead, weight=weight, shared_cluster_voxels=explain_shared_cluster_voxels,
+                            measured=measured)
         else:
             explain_shadows(box, label, lit_count, shadow_count, *seg, step, score=score, lead=lead, weight=weight,
-                            shared_cluster_voxels=explain_shared_cluster_voxels)
+                            shared_cluster_voxels=explain_shared_cluster_voxels, measured=measured)
     return VoxelEvidence(label.reshape(box.shape), (lit_count > 0).reshape(box.shape)), shadow_count.reshape(box.shape)
 
 
 def configured_evidence_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float, seen_free=None,
-                             count_shadow: bool = False, thin_points=None):
+                             count_shadow: bool = False, thin_points=None, measured_points=None):
     """`evidence_grid` with a FastConfig's settings: the one place that maps the settings onto its arguments
     (the start field and the spot advisor both label voxels this way)."""
     return evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m,
@@ -216,5 +231,7 @@ def configured_evidence_grid(data: RayData, box: GridBox, cfg, secondary_offset_
                          thin_points=thin_points,
                          lit_path_tolerance_m=lit_path_tolerance(data, box.voxel, cfg.lit_path_tolerance_voxels),
                          explain_neighbour_power=cfg.explain_neighbour_power,
-                         explain_shared_cluster_voxels=cfg.explain_shared_cluster_voxels)
+                         explain_shared_cluster_voxels=cfg.explain_shared_cluster_voxels,
+                         explain_measured_scale_voxels=cfg.explain_measured_scale_voxels,
+                         measured_points=measured_points)
 

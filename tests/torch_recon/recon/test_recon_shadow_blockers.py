@@ -139,3 +139,30 @@ def test_a_segment_in_a_large_restored_cluster_takes_the_blocker_most_segments_p
 def test_a_negative_shared_cluster_size_is_refused():
     with pytest.raises(SettingsError, match="fast.explain_shared_cluster_voxels"):
         FitConfig.from_dict({"mode": "fast", "fast": {"explain_shared_cluster_voxels": -1}})
+
+
+@pytest.mark.parametrize("scale, expected", [(0.0, (6, 5, 5)), (0.05, (5, 5, 5))])
+def test_the_blocker_goes_where_the_leg_was_measured_not_beside_it(scale, expected):
+    """`fast.explain_measured_scale_voxels` (shadow_blockers.MeasuredSurfacePoints): a segment along x crosses a leg's
+    carved voxel (5, 5, 5), grazed by a lit ray (shadowed 8, lit 1), and the voxel beside it in the leg's own shadow
+    (shadowed 6, lit 0): the ratio alone puts the blocker beside the leg; the leg's measured point (0.58, 0.55, 0.55)
+    inside its voxel puts it on the leg."""
+    from torch_recon.recon.shadow_blockers import MeasuredSurfacePoints
+
+    box = GridBox([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], 10)
+    flat = torch.full(box.shape, 3, dtype=torch.int8).reshape(-1)
+    shadow = torch.zeros(box.shape, dtype=torch.long)
+    lit = torch.zeros(box.shape, dtype=torch.long)
+    shadow[5, 5, 5], lit[5, 5, 5], shadow[6, 5, 5] = 8, 1, 6
+    seg = (torch.tensor([[0.05, 0.55, 0.55]]), torch.tensor([[1.0, 0.0, 0.0]]), torch.tensor([0.0]),
+           torch.tensor([0.9]))
+    measured = (MeasuredSurfacePoints(torch.tensor([[0.58, 0.55, 0.55], [0.1, 0.1, 0.9], [float("nan")] * 3]), scale)
+                if scale > 0 else None)
+    n = explain_shadows(box, flat, lit.reshape(-1), shadow.reshape(-1), *seg, 0.05, measured=measured)
+    assert n == 1
+    assert torch.nonzero(flat.reshape(box.shape) == RESTORED).squeeze(0).tolist() == list(expected)
+
+
+def test_a_negative_measured_scale_is_refused():
+    with pytest.raises(SettingsError, match="fast.explain_measured_scale_voxels"):
+        FitConfig.from_dict({"mode": "fast", "fast": {"explain_measured_scale_voxels": -0.5}})
