@@ -75,6 +75,10 @@ class InwardSmoothing:
     face_offsets_m: np.ndarray | None = None  # optional (volume shape + (6,)): per voxel and face (-x, +x, -y, +y, -z,
                                       # +z), how far its vertices first move inward along their normal (recon/hull_flat.py)
     occupancy: tuple | None = None    # optional (voxels (K, 3), share (K,)) put in the field first (recon/lit_fans.py)
+    unplaced_iterations: int = 0      # > 0: afterwards, Taubin passes of the vertices no camera ray places (recon/
+    placed: np.ndarray | None = None  # hull_unplaced.py): not beside these voxels (bool, volume shape), each at most
+    camera_free: np.ndarray | None = None  # unplaced_max_move_m from its start and never into these voxels
+    unplaced_max_move_m: float = 0.0
 
 
 def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: bool = True,
@@ -139,6 +143,10 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
             face = 2 * axis + (n[np.arange(len(n)), axis] > 0)
             first = np.where(mov, inward.face_offsets_m[g[:, 0], g[:, 1], g[:, 2], face], 0.0)
         inward_smoothing(mesh, mov, float(inward.max_move_m), int(inward.iterations), first_move=first)
+        if inward.unplaced_iterations > 0:
+            from .recon.hull_unplaced import unplaced_taubin
+            unplaced_taubin(mesh, np.asarray(inward.placed, bool), np.asarray(inward.camera_free, bool), lo, spacing,
+                            int(inward.unplaced_iterations), float(inward.unplaced_max_move_m))
     removed = 0
     if min_island_fraction > 0 and len(mesh.faces):
         # islands = faces connected through shared edges (as mesh.split), labelled in one pass: split builds a

@@ -174,6 +174,15 @@ class FitConfig:
         if self.fast.mesh_hull_lit_fan and not self.fast.mesh_hull_shrink_voxels > 0:
             raise SettingsError("fast.mesh_hull_lit_fan", "needs fast.mesh_hull_shrink_voxels > 0 (it shapes the hull "
                                                           "that setting makes shrinkable)")
+        if not (isinstance(self.fast.mesh_unplaced_taubin_iterations, int) and self.fast.mesh_unplaced_taubin_iterations >= 0):
+            raise SettingsError("fast.mesh_unplaced_taubin_iterations",
+                                f"expected a count >= 0 (0: off), got {self.fast.mesh_unplaced_taubin_iterations}")
+        if not 0 < self.fast.mesh_unplaced_max_voxels <= 2:     # NaN fails too
+            raise SettingsError("fast.mesh_unplaced_max_voxels",
+                                f"expected voxels in (0, 2], got {self.fast.mesh_unplaced_max_voxels}")
+        if self.fast.mesh_unplaced_taubin_iterations > 0 and not self.fast.mesh_hull_shrink_voxels > 0:
+            raise SettingsError("fast.mesh_unplaced_taubin_iterations", "needs fast.mesh_hull_shrink_voxels > 0 (it runs "
+                                                                        "in that setting's export step)")
         if self.fast.mesh_hull_shrink_graze_samples < 0:
             raise SettingsError("fast.mesh_hull_shrink_graze_samples",
                                 f"expected an integer >= 0 (0: no shadow-edge exception), got "

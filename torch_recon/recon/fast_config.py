@@ -266,6 +266,19 @@ class FastConfig:
                                           # occluded 0.808 / 0.781 / 1.21 % -> 0.814 / 0.790 / 1.31 % (blob hidden R
                                           # 0.657 -> 0.676, normals 0.895 -> 0.898), thin-structures hidden R 0.865 ->
                                           # 0.861 (the lamp): opt-in, +1-3 s of export (docs/reconstruction.md); false: off
+    mesh_unplaced_taubin_iterations: int = 0  # > 0: after the hull's inward smoothing, this many Taubin passes of every
+                                          # mesh vertex no camera ray places (not beside a visible surface's ramp or
+                                          # point voxel or a thin part; recon/hull_unplaced.py), each kept within
+                                          # mesh_unplaced_max_voxels of its start and out of camera-free space: the
+                                          # hidden hull's lumps sit on hull voxels training lowered part-way and on
+                                          # restored blockers, which the saturated-hull smoothings left alone
+                                          # (session 17: docs/reconstruction.md "The hidden hull's lumps"). 30
+                                          # passes, re-exports of main15: every object's normals +0.001-0.010 (blob
+                                          # 0.895 -> 0.902), organic-occluded / thin-structures F@2cm +0.003, but
+                                          # hidden R curved-wall 0.957 -> 0.950, outside-fov 0.613 -> 0.608: opt-in; 0: off
+    mesh_unplaced_max_voxels: float = 1.0  # ... the largest move, voxels (in (0, 2])
+    mesh_unplaced_silhouettes: bool = True  # ... and vertices beside camera-free voxels (silhouettes) stay too (false:
+                                          # organic-occluded hidden R 0.781 -> 0.777, the occluder's silhouette face)
     mesh_hull_flat_patch_faces: int = 15  # ... the patch size (coplanar faces of hull voxels towards carved space)
     mesh_hull_shrink_graze_samples: int = 4  # ... except hull voxels a shadowed segment grazes (crosses at most this
                                           # many marching samples of the hull: the shadow's edge); 0: none excepted

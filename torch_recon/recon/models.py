@@ -339,6 +339,10 @@ class FastModel(ReconstructionModel):
         if self.fc.mesh_hull_lit_fan:           # the rest of the hull's boundary by the lit fans' share (lit_fans.py)
             from .lit_fans import hull_occupancy
             hull_occupancy(self, out, flat)
+        if self.fc.mesh_unplaced_taubin_iterations > 0:     # hull_unplaced.py
+            from .hull_unplaced import set_unplaced_smoothing
+            set_unplaced_smoothing(self, out, self.fc.mesh_unplaced_taubin_iterations, self.fc.mesh_unplaced_max_voxels,
+                                   self.fc.mesh_unplaced_silhouettes)
         return out
 
     def params_finite(self) -> bool:
