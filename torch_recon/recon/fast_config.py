@@ -87,7 +87,7 @@ class FastConfig:
                                       # Session 16, 200 (only thin-structures' shade is that large): thin-structures
                                       # F@2cm / hidden R 0.838 / 0.865 -> 0.845 / 0.853 (lamp P 0.667 -> 0.702, hidden
                                       # R 0.827 -> 0.802: right wall voxels go with the lumps): opt-in; 0: off
-    explain_measured_scale_voxels: float = 0.0  # > 0: a shadowed segment's blocker ranks by shadowed / lit crossings
+    explain_measured_scale_voxels: float = 0.5  # > 0: a shadowed segment's blocker ranks by shadowed / lit crossings
                                       # over 1 + (its sample's distance to the nearest measured surface point, visible
                                       # or a thin part's) / this many voxels (shadow_blockers.MeasuredSurfacePoints): a
                                       # leg the carving took holds its measured points, the voxel beside it in the
@@ -97,7 +97,8 @@ class FastConfig:
                                       # (chair F@1cm 0.707 -> 0.721, normals 0.820 -> 0.816), curved-wall +0.006 /
                                       # +0.005, outside-fov +0.008 / +0.027; thin-structures hidden R 0.865 -> 0.854
                                       # (a table leg's column breaks under its top), organic-occluded spurious 1.21 ->
-                                      # 1.36 %: opt-in; 0: off
+                                      # 1.36 %; with mesh_keep_restored_voxels 3 (which keeps that column) every scene
+                                      # passes the default rule: the default since session 17; 0: off
     carve_min_lit: int = 1            # a voxel crossed by at least this many lit secondary rays is free
     lit_path_tolerance_voxels: float = 1.0  # > 0: a lit pair whose measured path is farther than this (voxels; at
                                       # least half a time bin) from the path through its pixel's visible point x got
@@ -234,7 +235,7 @@ class FastConfig:
                                           # outside-fov 0.643 / 0.602 -> 0.657 / 0.612 (spurious 3.59 -> 3.39 %), the
                                           # other four within 0.001; without the silhouette rule organic-occluded's
                                           # occluder lost 0.06 hidden R (docs/reconstruction.md)
-    mesh_keep_restored_voxels: int = 0  # > 0: the mesh's island cleanup also keeps a small island touching a restored
+    mesh_keep_restored_voxels: int = 3  # > 0: the mesh's island cleanup also keeps a small island touching a restored
                                       # blocker (voxel_evidence.explain_shadows, label 4) of a connected run (26-neighbours) of at
                                       # least this many restored voxels: a leg's restored one-voxel column breaks where
                                       # one voxel moves, and its lower part fell below the island size (as thin parts
@@ -242,7 +243,10 @@ class FastConfig:
                                       # F@2cm / hidden R 0.838 / 0.866 -> 0.834 / 0.870 (the lamp's interior lumps kept),
                                       # curved-wall F@2cm 0.941 -> 0.935; with explain_neighbour_power 1 it gives the
                                       # table's leg back (table hidden R 0.857 -> 0.892) but the lamp pays: opt-in
-                                      # (docs/reconstruction.md "Islands that hold restored blockers"); 0: off
+                                      # (docs/reconstruction.md "Islands that hold restored blockers"). Session 17:
+                                      # 3 is the default with explain_measured_scale_voxels 0.5 (the pair: hidden R
+                                      # +0.001 to +0.035 on every scene, F@2cm within 0.002, docs "The chair's legs
+                                      # from behind"); 0: off
     mesh_hull_flat_approach: bool = True  # the shrinkable hull's vertices on a flat axis-aligned patch of at least
                                           # mesh_hull_flat_patch_faces voxel faces (no light bounds such a face: marching
                                           # cubes puts it at its voxel layer's outer side) move inward by the light's
