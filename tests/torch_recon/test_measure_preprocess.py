@@ -218,7 +218,6 @@ def test_bad_settings_are_refused(plane_ds):
 def test_first_bounce_next_to_the_projected_pixel():
     """The laser ray projects to col 10.999 (pixel 10) but the return landed in pixel 11, as when the spot
     sits on a pixel border (the paper's targets do at 512^2) and rounding picks the neighbour."""
-    from torch_recon.contract.dataset import Spot
     from torch_recon.first_bounce import find_first_bounce
     sensor = default_sensor(16, 16, bins=391)
     ld = np.array([2.999 / 8, 1.0, 0.0625])

@@ -28,7 +28,6 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    import json
     from pathlib import Path
 
     from ..contract.settings import from_args

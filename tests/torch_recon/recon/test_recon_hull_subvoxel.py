@@ -69,7 +69,7 @@ def test_shrink_settings_refused_on_one_line(key, bad):
 def test_fast_model_moves_only_the_hidden_hull_and_only_when_asked():
     """Box on a floor: the movable voxels are the shadow hull's boundary (behind the box, out of the sensor's
     view), none on the measured floor, walls or the box's seen faces, none beside camera-free space."""
-    from tests.support.recon_fixtures import BOX_HI, BOX_LO, box_floor_measurements
+    from tests.support.recon_fixtures import BOX_LO, box_floor_measurements
     from tests.torch_recon.recon.test_recon_fit import small_config
     from tests.torch_recon.recon.test_recon_freeze import _meta
     from torch_recon.recon.data import build_ray_data

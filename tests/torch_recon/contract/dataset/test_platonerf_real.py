@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from tests.support.platonerf_fixtures import real_frame_from_blender, write_their_real_capture
+from tests.support.platonerf_fixtures import write_their_real_capture
 from torch_recon.contract.dataset import DatasetError, load_dataset
 from torch_recon.contract.dataset.platonerf_real import import_platonerf_real
 from torch_recon.contract.frames import pixel_rays
