@@ -13,6 +13,7 @@ import torch
 import torch.nn.functional as F
 
 from ..mesh_export import InwardSmoothing
+from .adam import GridAdam
 from .config import FitConfig
 from .data import RayData, lit_path_tolerance, unexplained_lit, without_lit
 from .fields import DensityGrid, GridBox
@@ -192,7 +193,7 @@ class FastModel(ReconstructionModel):
         return self.fc.step_voxels * self.grid.box.voxel
 
     def make_optimizer(self):
-        self.optimizer = torch.optim.Adam(self.grid.parameters(), lr=self.fc.lr, eps=self.fc.adam_eps)
+        self.optimizer = GridAdam(self.grid.parameters(), lr=self.fc.lr, eps=self.fc.adam_eps)     # torch.optim.Adam, bit for bit
         if self._hook is not None:      # one gradient mask at a time, also when called again on the same grid
             self._hook.remove()
             self._hook = None
