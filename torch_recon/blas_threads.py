@@ -2,7 +2,7 @@
 
 numpy's products in a fit are small (20000 x 3 points by a plane's normal, 1200 times over in the bounding
 planes' RANSAC; 2 M voxel centres by a 3 x 3 rotation): a second OpenBLAS thread only adds its wake-ups, and on
-a loaded machine each waits for a core. cave-chair 128 px bounding planes, load 8-10: 12.4-16.4 s wall (1.5-2.4
+a loaded machine each waits for a core. cave-chair 128 px bounding planes, load 8-10: 9.3-19.7 s wall (0.9-2.4
 CPU-s) with numpy's default threads, 1.5-3.6 s (0.35-0.94 CPU-s) with one, the same planes to the bit (session
 17, issue 11); 1000 such products: 3.0-12.4 s wall against 0.08-0.12 s. Each product's dot products are the
 same with any thread count (the threads split its rows). torch keeps its own `--threads`.
