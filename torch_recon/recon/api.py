@@ -115,6 +115,13 @@ def load_source(source, progress: bool = True, device="cpu"):
 def fit(source, mode: str | None = None, out=None, config: FitConfig | None = None, on_eval=None,
         export: bool = True, fault_hook=None, stop_after: int | None = None, uv: bool = True) -> FitResult:
     """Fit a density field to two-bounce measurements and (with `out` and `export`) write the mesh."""
+    from ..blas_threads import single_threaded_blas
+
+    with single_threaded_blas():    # numpy's products here are small: a second BLAS thread only waits (blas_threads.py)
+        return _fit(source, mode, out, config, on_eval, export, fault_hook, stop_after, uv)
+
+
+def _fit(source, mode, out, config, on_eval, export, fault_hook, stop_after, uv) -> FitResult:
     t_start = time.perf_counter()
     cfg = config or (FitConfig(mode=mode) if mode else FitConfig())
     if mode and mode != cfg.mode:

@@ -13,6 +13,7 @@ import torch
 import torch.nn.functional as F
 
 from ..mesh_export import InwardSmoothing
+from .adam import GridAdam
 from .config import FitConfig
 from .data import RayData, lit_path_tolerance, unexplained_lit, without_lit
 from .fields import DensityGrid, GridBox
@@ -24,7 +25,7 @@ from .renderer import render_pruned
 from .sampler import ray_box
 from .smoothness import NormalConsistencyPrior
 from .thin_parts import thin_part_cloud, thin_part_signed_distance, thin_part_voxels
-from .visible_surface_init import (coarse_sensor_seen_free, in_front_of_visible_surface, seen_depth,
+from .visible_surface_init import (coarse_sensor_seen_free, dilate_cube, in_front_of_visible_surface, seen_depth,
                                    seen_free_points, surface_offset, visible_surface)
 
 
@@ -49,6 +50,7 @@ class FastModel(ReconstructionModel):
         tol = lit_path_tolerance(data, voxel, self.fc.lit_path_tolerance_voxels)
         self._training_data = without_lit(data, unexplained_lit(data, tol)) if tol > 0 else data
         self._hook = None
+        self._thin_index = None     # (thin_parts, their flat indices) for the gradient mask
         self._normal_cells = None
         self._set_measured_mask(self.grid.raw)
         self._set_thin_parts(self.grid.box)
@@ -119,9 +121,9 @@ class FastModel(ReconstructionModel):
             return None
         with torch.no_grad():
             ramp = (raw > self.fc.raw_free + 1e-3) & (raw < self.fc.raw_occupied - 1e-3)
-            k = 2 * int(self.fc.freeze_dilate_voxels) + 1
-            if k > 1:
-                ramp = F.max_pool3d(ramp.float(), k, 1, k // 2) > 0
+            r = int(self.fc.freeze_dilate_voxels)
+            if r >= 1:
+                ramp = dilate_cube(ramp.float(), r) > 0        # max_pool3d(., 2 r + 1, 1, r)
             free = self.free.permute(2, 1, 0)[None, None].to(raw.device)
             return ~(ramp | free)
 
@@ -148,8 +150,18 @@ class FastModel(ReconstructionModel):
         if self.trainable is not None and self.fc.freeze_measured:
             g = g * self.trainable.to(g.dtype)
         if self.thin_parts is not None:
-            stop = self.thin_parts if self.fc.thin_part_training == "frozen" else self.thin_parts & (g > 0)
-            g = g.masked_fill(stop, 0.0)
+            # the same values as g.masked_fill(stop, 0.0), at the thin parts' few voxels instead of the whole grid
+            # (4.1 -> 1.4 ms per step on 128^3 voxels, session 17)
+            if self._thin_index is None or self._thin_index[0] is not self.thin_parts:
+                self._thin_index = (self.thin_parts, torch.nonzero(self.thin_parts.reshape(-1)).reshape(-1))
+            idx = self._thin_index[1].to(g.device)
+            g = g.clone()
+            flat = g.view(-1)
+            if self.fc.thin_part_training == "frozen":
+                flat.index_fill_(0, idx, 0.0)
+            else:
+                vals = flat[idx]
+                flat[idx] = torch.where(vals > 0, torch.zeros_like(vals), vals)
         return g
 
     def fixed_depth(self, px):
@@ -192,7 +204,7 @@ class FastModel(ReconstructionModel):
         return self.fc.step_voxels * self.grid.box.voxel
 
     def make_optimizer(self):
-        self.optimizer = torch.optim.Adam(self.grid.parameters(), lr=self.fc.lr, eps=self.fc.adam_eps)
+        self.optimizer = GridAdam(self.grid.parameters(), lr=self.fc.lr, eps=self.fc.adam_eps)     # torch.optim.Adam, bit for bit
         if self._hook is not None:      # one gradient mask at a time, also when called again on the same grid
             self._hook.remove()
             self._hook = None
@@ -203,11 +215,11 @@ class FastModel(ReconstructionModel):
         self._normal_prior = None       # the surface band moves with the field
         with torch.no_grad():
             tau = self.grid.density_scale * F.softplus(self.grid.raw) * self.grid.box.voxel
-            occ = F.max_pool3d((tau > self.fc.occupancy_threshold).float(), 3, 1, 1) > 0
+            occ = dilate_cube((tau > self.fc.occupancy_threshold).float(), 1) > 0     # max_pool3d(., 3, 1, 1)
             self.occupancy = occ[0, 0].permute(2, 1, 0).contiguous()
             # early termination must not stop too soon: the smallest raw density in a cell's neighbourhood
             # bounds the trilinear value from below, so its optical depth is a safe estimate
-            raw_lo = -F.max_pool3d(-self.grid.raw, 3, 1, 1)
+            raw_lo = -dilate_cube(-self.grid.raw, 1)
             tau_lo = self.grid.density_scale * F.softplus(raw_lo) * self.grid.box.voxel
             self.tau_step = (tau_lo[0, 0] * self.fc.step_voxels).permute(2, 1, 0).contiguous()
 

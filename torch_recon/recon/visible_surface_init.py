@@ -71,12 +71,21 @@ def visible_surface(data: RayData, box: GridBox):
 
 
 def dilate_cube(x: torch.Tensor, r: int) -> torch.Tensor:
-    """Maximum over the (2 r + 1)^3 cube around each voxel of x (nx, ny, nz), one axis at a time (the
-    same as one 3-D max pool, a fifth of the time for r = 3)."""
-    x = x[None, None]
-    for kernel in ((2 * r + 1, 1, 1), (1, 2 * r + 1, 1), (1, 1, 2 * r + 1)):
-        x = torch.nn.functional.max_pool3d(x, kernel, 1, tuple(k // 2 for k in kernel))
-    return x[0, 0]
+    """Maximum over the (2 r + 1)^3 cube around each voxel (cut off at the grid's faces) of x (..., nx, ny, nz), a
+    new tensor: the same values as `max_pool3d(x, 2 r + 1, 1, r)`, NaN included. One axis at a time, each a
+    maximum with the neighbours on either side r times over: 12 ms for r = 1 on 128^3 voxels where max_pool3d took
+    160 ms (and its 1-D kernels one axis at a time 138; session 17, issue 11)."""
+    if r <= 0:
+        return x.clone()
+    for dim in range(x.dim() - 3, x.dim()):
+        n = x.shape[dim]
+        for _ in range(r):
+            y = x.clone()
+            lo, hi = y.narrow(dim, 0, n - 1), y.narrow(dim, 1, n - 1)
+            torch.maximum(hi, x.narrow(dim, 0, n - 1), out=hi)
+            torch.maximum(lo, x.narrow(dim, 1, n - 1), out=lo)
+            x = y
+    return x
 
 
 def surface_signed_distance(data: RayData, box: GridBox, half_width_voxels: float = 2.0, k: int = 4,
