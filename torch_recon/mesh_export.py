@@ -339,12 +339,9 @@ def write_mesh(mesh, path) -> Path:
     tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
     m = _to_file_frame(mesh, suffix)
     if suffix == ".obj":   # UVs as 'vt', but no material/texture files beside it (nothing to show in them)
-        from .mesh_obj import obj_text
-        text = obj_text(m)      # trimesh's text, about 3x faster to format
-        if text is None:
-            from trimesh.exchange.obj import export_obj
-            text, _ = export_obj(m, include_texture=True, return_texture=True, mtl_name=f"{path.stem}.mtl")
-            text = re.sub(r"^(?:mtllib|usemtl)\b[^\n]*\n?", "", text, flags=re.MULTILINE)   # one line each
+        from trimesh.exchange.obj import export_obj
+        text, _ = export_obj(m, include_texture=True, return_texture=True, mtl_name=f"{path.stem}.mtl")
+        text = re.sub(r"^(?:mtllib|usemtl)\b[^\n]*\n?", "", text, flags=re.MULTILINE)   # one line each
         tmp.write_text(text if text.endswith("\n") else text + "\n")
     else:
         m.export(tmp)
