@@ -115,9 +115,12 @@ def load_source(source, progress: bool = True, device="cpu"):
 def fit(source, mode: str | None = None, out=None, config: FitConfig | None = None, on_eval=None,
         export: bool = True, fault_hook=None, stop_after: int | None = None, uv: bool = True) -> FitResult:
     """Fit a density field to two-bounce measurements and (with `out` and `export`) write the mesh."""
-    from ..blas_threads import single_threaded_blas
+    from threadpoolctl import threadpool_limits
 
-    with single_threaded_blas():    # numpy's products here are small: a second BLAS thread only waits (blas_threads.py)
+    # numpy's products in a fit are small (the bounding planes' RANSAC: ~2400 of 20000 x 3 points by a normal): a
+    # second OpenBLAS thread only adds wake-ups, and on a loaded machine each waits for a core (docs/reconstruction.md
+    # "Fixed costs", session 17). torch keeps its own `--threads`.
+    with threadpool_limits(limits=1, user_api="blas"):
         return _fit(source, mode, out, config, on_eval, export, fault_hook, stop_after, uv)
 
 
