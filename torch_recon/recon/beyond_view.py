@@ -19,9 +19,8 @@ import numpy as np
 import torch
 
 from .data import RayData
-from .fields import GridBox
+from .fields import GridBox, dilate_cube
 from .segment_crossings import marching_cells, pair_segments
-from .visible_surface_init import dilate_cube
 
 
 def _camera_basis(data: RayData):

@@ -168,3 +168,21 @@ class NeRFField(nn.Module):
                 h = torch.cat([h, e], -1)
             h = F.relu(layer(h))
         return F.relu(self.density(h)).reshape(pts.shape[:-1])
+
+
+def dilate_cube(x: torch.Tensor, r: int) -> torch.Tensor:
+    """Maximum over the (2 r + 1)^3 cube around each voxel (cut off at the grid's faces) of x (..., nx, ny, nz), a
+    new tensor: the same values as `max_pool3d(x, 2 r + 1, 1, r)`, NaN included. One axis at a time, each a
+    maximum with the neighbours on either side r times over: 12 ms for r = 1 on 128^3 voxels where max_pool3d took
+    160 ms (and its 1-D kernels one axis at a time 138; session 17, issue 11)."""
+    if r <= 0:
+        return x.clone()
+    for dim in range(x.dim() - 3, x.dim()):
+        n = x.shape[dim]
+        for _ in range(r):
+            y = x.clone()
+            lo, hi = y.narrow(dim, 0, n - 1), y.narrow(dim, 1, n - 1)
+            torch.maximum(hi, x.narrow(dim, 0, n - 1), out=hi)
+            torch.maximum(lo, x.narrow(dim, 1, n - 1), out=lo)
+            x = y
+    return x

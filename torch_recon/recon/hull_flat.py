@@ -22,7 +22,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from .fields import GridBox
+from .fields import GridBox, dilate_cube
 from .sampler import ray_box
 from .segment_crossings import marching_cells
 
@@ -91,7 +91,7 @@ def light_approach(box, origins, dirs, near, far, cells, chunk_samples: int = 1 
     index = torch.full((nx * ny * nz,), -1, dtype=torch.long, device=origins.device)
     index[cells.reshape(-1)] = torch.arange(m, device=origins.device)
     # the coarse midpoints may lie up to half a voxel outside the grid: marched on the grid with one voxel around
-    around = F.max_pool3d(F.pad(cells.float(), (1,) * 6)[None, None], 3, 1, 1).reshape(-1) > 0
+    around = dilate_cube(F.pad(cells.float(), (1,) * 6), 1).reshape(-1) > 0
     wide = GridBox.exact(box.bbox_min - box.voxel, box.voxel, [nx + 2, ny + 2, nz + 2])
     coarse, fine = box.voxel, APPROACH_STEP_VOXELS * box.voxel
     for rays, flat, keep in marching_cells(wide, origins, dirs, near, far, coarse, chunk_samples):
@@ -148,7 +148,7 @@ def flat_patches_inward(model, inward) -> np.ndarray:
     flat = flat_patch_voxels(inward.movable, free, fc.mesh_hull_flat_patch_faces)
     if not flat.any():        # (cave-chair: its hull's faces are small or beside the light)
         return flat
-    cells = (F.max_pool3d(torch.as_tensor(flat)[None, None].float(), 3, 1, 1)[0, 0] > 0) & torch.as_tensor(free)
+    cells = (dilate_cube(torch.as_tensor(flat).float(), 1) > 0) & torch.as_tensor(free)
     approach = light_approach(box, *carving_segments(model, lit=True), cells.to(box.bbox_min.device))
     inward.face_offsets_m = flat_face_offsets(flat, free, cells.numpy(), approach.cpu().numpy(), box.voxel)
     return flat

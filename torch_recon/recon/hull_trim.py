@@ -21,6 +21,7 @@ import torch
 import torch.nn.functional as F
 
 from .segment_crossings import marching_cells
+from .fields import dilate_cube
 
 
 def unneeded_hull(free: torch.Tensor, hull: torch.Tensor, shadow_count: torch.Tensor, surface_band: torch.Tensor,
@@ -30,7 +31,7 @@ def unneeded_hull(free: torch.Tensor, hull: torch.Tensor, shadow_count: torch.Te
     can = hull & (shadow_count == 0) & ~surface_band
     reach = free.clone()
     for _ in range(max(0, int(depth_voxels))):
-        grown = F.max_pool3d(reach[None, None].float(), 3, 1, 1)[0, 0] > 0
+        grown = dilate_cube(reach.float(), 1) > 0
         new = grown & can & ~reach
         if not bool(new.any()):
             break

@@ -18,10 +18,10 @@ import torch
 
 from ..contract.errors import UnconstrainedMeasurementsError
 from .data import RayData
-from .fields import DensityGrid, GridBox
+from .fields import DensityGrid, GridBox, dilate_cube
 from .segment_crossings import pair_segments, spot_crossings
 from .thin_parts import thin_part_signed_distance
-from .visible_surface_init import dilate_cube, surface_offset, surface_signed_distance, visible_surface
+from .visible_surface_init import surface_offset, surface_signed_distance, visible_surface
 from .voxel_evidence import NEAREST, RESTORED, carving_pixel_mask, configured_evidence_grid
 
 

@@ -16,7 +16,7 @@ from ..mesh_export import InwardSmoothing
 from .adam import GridAdam
 from .config import FitConfig
 from .data import RayData, lit_path_tolerance, unexplained_lit, without_lit
-from .fields import DensityGrid, GridBox
+from .fields import DensityGrid, GridBox, dilate_cube
 from .hull_subvoxel import SHRINK_ITERATIONS, binary_boundary_inset, shrinkable_hull
 from .init import grid_bbox, in_view, initial_grid
 from .losses import all_finite
@@ -25,7 +25,7 @@ from .renderer import render_pruned
 from .sampler import ray_box
 from .smoothness import NormalConsistencyPrior
 from .thin_parts import thin_part_cloud, thin_part_signed_distance, thin_part_voxels
-from .visible_surface_init import (coarse_sensor_seen_free, dilate_cube, in_front_of_visible_surface, seen_depth,
+from .visible_surface_init import (coarse_sensor_seen_free, in_front_of_visible_surface, seen_depth,
                                    seen_free_points, surface_offset, visible_surface)
 
 

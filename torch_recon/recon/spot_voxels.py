@@ -13,11 +13,11 @@ import math
 
 import torch
 
-from .fields import GridBox
+from .fields import GridBox, dilate_cube
 from .init import in_view
 from .segment_crossings import marching_cells
 from .spot_geometry import back_facing_free
-from .visible_surface_init import coarse_sensor_seen_free, dilate_cube
+from .visible_surface_init import coarse_sensor_seen_free
 from .voxel_evidence import configured_evidence_grid
 
 #: voxel classes along a segment (FACE: a hidden back face next to a measured surface, see voxel_classes)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import torch
 
 from .data import RayData, pixel_angle
+from .fields import dilate_cube
 
 
 def _shifted(t, dy, dx, fill):
@@ -153,7 +154,7 @@ def thin_part_signed_distance(data: RayData, box, radius: float, edges: bool = T
     sd = torch.full(tuple(box.shape), float("nan"), device=pts.device)
     if len(pts) == 0:
         return sd
-    near = torch.nn.functional.max_pool3d(_voxels_of(box, pts).float()[None, None], 3, 1, 1)[0, 0] > 0
+    near = dilate_cube(_voxels_of(box, pts).float(), 1) > 0
     dist, _ = cKDTree(pts.cpu().double().numpy()).query(box.centres()[near].cpu().double().numpy())
     sd[near] = radius - torch.as_tensor(dist, dtype=sd.dtype, device=sd.device)
     return sd

@@ -7,7 +7,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from torch_recon.recon.visible_surface_init import dilate_cube
+from torch_recon.recon.fields import dilate_cube
 
 
 def _same(a: torch.Tensor, b: torch.Tensor) -> bool:

@@ -13,7 +13,7 @@ torch = pytest.importorskip("torch")
 
 from torch_recon.recon.fields import GridBox  # noqa: E402
 from torch_recon.recon.segment_crossings import accumulate_crossings, marching_cells  # noqa: E402
-from torch_recon.recon.visible_surface_init import dilate_cube  # noqa: E402
+from torch_recon.recon.fields import dilate_cube  # noqa: E402
 from torch_recon.recon.sampler import marching_intervals  # noqa: E402
 
 

@@ -13,7 +13,7 @@ from torch_recon.recon.data import RayData  # noqa: E402
 from torch_recon.recon.fields import GridBox  # noqa: E402
 from torch_recon.recon.hull_trim import unneeded_hull  # noqa: E402
 from torch_recon.recon.voxel_evidence import NEAREST, RESTORED, evidence_grid  # noqa: E402
-from torch_recon.recon.visible_surface_init import dilate_cube  # noqa: E402
+from torch_recon.recon.fields import dilate_cube  # noqa: E402
 
 POST_XY, POST_R, POST_TOP = np.array([0.55, 0.45]), 0.02, 0.6
 
