@@ -2,7 +2,7 @@
 
 Pipeline: marching cubes (scikit-image) -> (optional) keep only faces facing measured free space ->
 (optional) Taubin smoothing, pin-holes' rims pinned -> drop small islands -> drop zero-area faces, merge vertices (trimesh) ->
-UV unwrap (xatlas) -> .ply / .obj / .glb.
+UV unwrap (xatlas, `mesh_uv.py`) -> .ply / .obj / .glb.
 
 Volume convention: `volume[i, j, k]` is the value at the grid point
 bbox_min + (i, j, k) * (bbox_max - bbox_min) / (shape - 1), world (Blender, Z-up)
@@ -261,67 +261,6 @@ def _faces_facing_free(mesh, free, lo, spacing, shape, free_points=None):
     return mesh
 
 
-def _split_faces(centroids, idx, max_faces):
-    """Recursive median split of faces (by centroid, longest axis) into blocks of <= max_faces."""
-    if len(idx) <= max_faces:
-        return [idx]
-    c = centroids[idx]
-    axis = int(np.argmax(c.max(0) - c.min(0)))
-    order = idx[np.argsort(c[:, axis], kind="stable")]
-    half = len(order) // 2
-    return _split_faces(centroids, order[:half], max_faces) + _split_faces(centroids, order[half:], max_faces)
-
-
-def _atlas(xatlas, positions, indices, tile_texels: int):
-    """One block's (vertex map, faces, UVs in [0, 1]) from xatlas, its charts packed into a square of
-    about `tile_texels` texels (0: xatlas' own estimate, about 1000 per block here)."""
-    atlas = xatlas.Atlas()
-    atlas.add_mesh(positions, indices)
-    pack = xatlas.PackOptions()
-    pack.resolution = int(tile_texels)
-    atlas.generate(xatlas.ChartOptions(), pack)
-    if atlas.atlas_count > 1:       # the charts did not fit one page: let xatlas size it
-        atlas = xatlas.Atlas()
-        atlas.add_mesh(positions, indices)
-        atlas.generate()
-    return atlas[0]
-
-
-def uv_unwrap(mesh, block_faces: int = 2000, tile_texels: int = 256):
-    """xatlas parametrisation; returns a new trimesh with per-vertex UVs (vertices split on seams).
-
-    xatlas' time grows faster than linearly with the face count (about 10 s for 40k faces
-    and minutes for 200k here), so large meshes are cut into spatial blocks of at most
-    `block_faces` faces, each unwrapped on its own and packed into a grid of UV tiles.
-    Measured on the 367k-face cave-chair fit (128 px, 2-core EPYC, one process, same load):
-    blocks of 10000 / 5000 / 2000 faces took 54 / 35 / 24 s.
-    Each block's charts are packed into about `tile_texels` squared texels: packing is half of
-    xatlas' time at its own estimate (about 1000 x 1000 per 2000-face block, an atlas of some
-    11000 texels across for 128 blocks); 256 halves the time (the charts, seams and vertex splits
-    are the same; only where the charts lie in their tile changes).
-    """
-    import trimesh
-    import xatlas
-    from tqdm import tqdm
-
-    v = np.asarray(mesh.vertices, np.float64)
-    f = np.asarray(mesh.faces, np.int64)
-    blocks = _split_faces(v[f].mean(axis=1), np.arange(len(f)), block_faces)
-    n = int(np.ceil(np.sqrt(len(blocks))))
-    verts, faces, uvs, base = [], [], [], 0
-    # a bar once the atlas takes seconds (about 0.1 s per block here)
-    for b, fi in enumerate(tqdm(blocks, desc="UV atlas", unit="block", disable=len(blocks) < 16, leave=False)):
-        used, local = np.unique(f[fi], return_inverse=True)
-        vmap, idx, uv = _atlas(xatlas, v[used].astype(np.float32), local.reshape(-1, 3).astype(np.uint32),
-                               tile_texels)
-        verts.append(v[used][vmap])
-        faces.append(idx.astype(np.int64) + base)
-        uvs.append((uv + np.array([b % n, b // n])) / n)   # tile b of an n x n grid
-        base += len(vmap)
-    return trimesh.Trimesh(np.concatenate(verts), np.concatenate(faces), process=False,
-                           visual=trimesh.visual.TextureVisuals(uv=np.concatenate(uvs)))
-
-
 def _to_file_frame(mesh, suffix: str):
     out = mesh.copy()
     if suffix in Y_UP_SUFFIXES:
@@ -396,6 +335,8 @@ def export_mesh(volume, bbox_min, bbox_max, level, out_path, metadata=None, *, e
                                      free_points=free_points, keep_near=keep_near, inward=inward)
     uv_done = False
     if uv and len(mesh.faces) <= max_uv_faces:
+        from .mesh_uv import uv_unwrap
+
         mesh = uv_unwrap(mesh)
         uv_done = True
     paths = [write_mesh(mesh, out_path.with_suffix(s)) for s in dict.fromkeys(suffixes)]

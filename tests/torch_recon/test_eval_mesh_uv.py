@@ -8,7 +8,8 @@ import pytest
 pytest.importorskip("xatlas")
 trimesh = pytest.importorskip("trimesh")
 
-from torch_recon.mesh_export import uv_unwrap, write_mesh  # noqa: E402
+from torch_recon.mesh_export import write_mesh  # noqa: E402
+from torch_recon.mesh_uv import uv_unwrap  # noqa: E402
 
 
 def test_packing_size_changes_only_where_charts_lie(tmp_path):
