@@ -134,7 +134,7 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
                                         laplacian_operator=lap)
     if inward is not None and len(mesh.faces):
         inside = mesh.vertices - 0.5 * spacing * mesh.vertex_normals
-        g = np.clip(np.rint((inside - lo) / spacing).astype(np.int64), 0, np.array(np.shape(volume)) - 1)
+        g = nearest_grid_point(inside, lo, spacing, np.shape(volume))
         mov = np.asarray(inward.movable, bool)[g[:, 0], g[:, 1], g[:, 2]]
         first = None
         if inward.face_offsets_m is not None:   # a vertex's face: its voxel's face along the normal's main axis
@@ -168,6 +168,13 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
     if close_boundary:   # the padded ring lies just outside the box: clamp it onto the box faces
         mesh.vertices = np.clip(mesh.vertices, lo, hi)
     return _without_degenerate(mesh), removed
+
+
+def nearest_grid_point(points, lo, spacing, shape) -> np.ndarray:
+    """(N, 3) int64 index of the grid point nearest each of `points` (N, 3), clipped into a grid of `shape` whose
+    point (0, 0, 0) lies at `lo` with `spacing` between points: the voxel a mesh vertex or a point beside it reads."""
+    g = np.rint((np.asarray(points, np.float64) - lo) / spacing).astype(np.int64)
+    return np.clip(g, 0, np.asarray(shape) - 1)
 
 
 def inward_smoothing(mesh, movable, max_move: float, iterations: int, lamb: float = 0.5, first_move=None):

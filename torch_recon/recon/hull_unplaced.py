@@ -63,13 +63,15 @@ def unplaced_taubin(mesh, placed: np.ndarray, camera_free: np.ndarray, lo, spaci
     where it started, and one that ends in a `camera_free` voxel goes back (the sensor saw that space empty)."""
     import trimesh
 
+    from ..mesh_export import nearest_grid_point
+
     if iterations <= 0 or len(mesh.faces) == 0:
         return mesh
     shape = np.array(placed.shape)
     lo, spacing = np.asarray(lo, np.float64), np.asarray(spacing, np.float64)
 
     def cell(p):
-        return tuple(np.clip(np.rint((p - lo) / spacing).astype(np.int64), 0, shape - 1).T)
+        return tuple(nearest_grid_point(p, lo, spacing, shape).T)
 
     v0 = np.asarray(mesh.vertices, np.float64).copy()
     n = np.asarray(mesh.vertex_normals, np.float64)
