@@ -8,7 +8,9 @@ valid / invalid view counts, and from the evaluation's object metrics (torch_rec
 object F-score at 1 / 2 / 5 cm (mean over the scene's objects), hidden recall at 2 cm, spurious-surface
 fraction (whole mesh and objects' region), object normal consistency (mean |n_rec . n_gt| within 5 cm:
 the lumps the distances miss), degenerate faces. Targets (issue 11): F@2cm >= 0.90, hidden
-recall@2cm >= 0.85, spurious <= 0.02, no degenerate faces.
+recall@2cm >= 0.85, spurious <= 0.02, no degenerate faces. The issue names the spurious fraction both per
+object ("in the objects' region") and for the whole mesh, so the table prints both: the whole mesh's is
+diluted by the walls (cave-chair 0.002 where the chair's region is 0.059).
 """
 
 from __future__ import annotations
@@ -63,7 +65,8 @@ def run(s: Settings, ctx) -> list:
                          "note": note})
             r = ctx.keep(rows[-1])
             ctx.log(f"  {scene} {method}: L1 {fmt(r['depth_l1_m'])} m, F@2cm {fmt(r['obj_f2cm'])}, "
-                    f"hidden R@2cm {fmt(r['hidden_recall_2cm'])}, spurious {fmt(r['spurious'])}, "
+                    f"hidden R@2cm {fmt(r['hidden_recall_2cm'])}, spurious {fmt(r['spurious'])} "
+                    f"(objects' region {fmt(r['objects_spurious'])}), "
                     f"normals {fmt(r['obj_normals'])}, degenerate {r['degenerate_faces']}, {fmt(r['wall_s'])} s")
     return rows
 
@@ -71,8 +74,8 @@ def run(s: Settings, ctx) -> list:
 COLUMNS = (("scene", "scene"), ("method", "method"), ("wall_s", "time s", ".0f"), ("steps", "steps"),
            ("load_1min", "load", ".1f"), ("depth_l1_m", "L1 m (valid views)", ".4f"), ("depth_psnr_db", "PSNR dB", ".2f"),
            ("obj_f2cm", "obj F@2cm", ".3f"), ("obj_f5cm", "obj F@5cm", ".3f"),
-           ("hidden_recall_2cm", "hidden R@2cm", ".3f"), ("spurious", "spurious", ".3f"),
-           ("obj_normals", "obj normals", ".3f"),
+           ("hidden_recall_2cm", "hidden R@2cm", ".3f"), ("spurious", "spurious (whole mesh)", ".3f"),
+           ("objects_spurious", "spurious (objects' region)", ".3f"), ("obj_normals", "obj normals", ".3f"),
            ("degenerate_faces", "degenerate faces"), ("n_test_views", "views valid"),
            ("n_test_views_invalid", "invalid"), ("note", "note"), ("run", "run"))
 

@@ -96,3 +96,15 @@ def test_objects_table_orders_by_scene_and_method_and_says_no_surface():
     assert [line.split(" | ")[:2] for line in lines] == [["| cave-chair", "bflidar"], ["| curved-wall", "fast"],
                                                          ["| curved-wall", "platonerf"]]
     assert "| 3 | 9.5 |" in lines[2] and "no surface; short budget" in lines[2] and lines[2].endswith("| 2 |")
+
+
+def test_objects_table_prints_the_whole_mesh_and_the_objects_region_spurious_fractions():
+    # the walls dilute the whole mesh's fraction: the objects' region's must be printed beside it
+    from benchmarks.suites.objects import readme
+    rows = [{"method": "fast", "scene": "cave-chair", "wall_s": 1.0, "spurious": 0.002, "objects_spurious": 0.059,
+             "run": 1}]
+    header, _, line = readme({"rows": rows}).splitlines()
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    names = [c.strip() for c in header.strip("|").split("|")]
+    assert cells[names.index("spurious (whole mesh)")] == "0.002"
+    assert cells[names.index("spurious (objects' region)")] == "0.059"
