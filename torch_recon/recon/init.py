@@ -109,6 +109,29 @@ def in_view(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_ax
     return ok.reshape(box.shape)
 
 
+def room_planes(data: RayData, box: GridBox, cfg, surface, in_view_known: bool = True) -> list:
+    """The planes bounding the observation (`unobserved.bounding_planes`) where a setting uses them, else []:
+    completing the unobserved space (needs the view: `in_view_known`), trimming the hull, concave corners."""
+    from .unobserved import bounding_planes
+    if not ((cfg.complete_unobserved and in_view_known) or cfg.trim_hull_voxels > 0
+            or cfg.surface_concave_corners == "planes"):
+        return []
+    return bounding_planes(*surface, data.sensor_origin.cpu().numpy(), data.spot_points.cpu().numpy(),
+                           cfg.plane_tolerance_voxels * box.voxel, cfg.plane_min_support)
+
+
+def objects_measured_points(box: GridBox, cfg, surface, planes: list):
+    """The measured points a shadowed segment's blocker ranks by (`fast.explain_measured_scale_voxels`; None
+    when off): the visible points off the room's bounding planes (`room_planes`). Beside a chair's foot every
+    candidate is as near the floor's points, and blockers slid down onto it (session 17). The start field and
+    the spot advisor's voxel classes both take them from here."""
+    from .unobserved import on_planes
+    if cfg.explain_measured_scale_voxels <= 0:
+        return None
+    pts = np.asarray(surface[0])
+    return torch.as_tensor(pts[~on_planes(pts, surface[1], planes, cfg.plane_tolerance_voxels * box.voxel)])
+
+
 def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0.0, view=None, surface=None,
                  seen_free=None, thin_points=None):
     """The fast mode's starting field (cfg: FastConfig), the voxels the mesh may face (nx, ny, nz) bool and the
@@ -128,19 +151,11 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     `thin_parts.thin_part_cloud` (the model's frozen thin-part mask uses the same points).
     """
     from .beyond_view import lit_side_of_hull, out_of_view_spots, unneeded_beside_view
-    from .unobserved import bounding_planes, on_planes, shell_signed_distance
+    from .unobserved import on_planes, shell_signed_distance
 
     surface = visible_surface(data, box) if surface is None else surface
-    planes = (bounding_planes(*surface, data.sensor_origin.cpu().numpy(), data.spot_points.cpu().numpy(),
-                              cfg.plane_tolerance_voxels * box.voxel, cfg.plane_min_support)
-              if (cfg.complete_unobserved and view is not None) or cfg.trim_hull_voxels > 0
-              or cfg.surface_concave_corners == "planes" else [])
-    measured = None
-    if cfg.explain_measured_scale_voxels > 0:
-        # the objects' measured points, not the room's bounding planes: beside a chair's foot every candidate is as
-        # near the floor's points, and blockers slid down onto it (session 17)
-        pts = np.asarray(surface[0])
-        measured = torch.as_tensor(pts[~on_planes(pts, surface[1], planes, cfg.plane_tolerance_voxels * box.voxel)])
+    planes = room_planes(data, box, cfg, surface, view is not None)
+    measured = objects_measured_points(box, cfg, surface, planes)
     evidence, shadow_count = configured_evidence_grid(data, box, cfg, secondary_offset_m, seen_free,
                                                       count_shadow=cfg.trim_hull_voxels > 0, thin_points=thin_points,
                                                       measured_points=measured)

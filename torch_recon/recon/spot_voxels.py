@@ -14,10 +14,10 @@ import math
 import torch
 
 from .fields import GridBox, dilate_cube
-from .init import in_view
+from .init import in_view, objects_measured_points, room_planes
 from .segment_crossings import marching_cells
 from .spot_geometry import back_facing_free
-from .visible_surface_init import coarse_sensor_seen_free
+from .visible_surface_init import coarse_sensor_seen_free, visible_surface
 from .voxel_evidence import configured_evidence_grid
 
 #: voxel classes along a segment (FACE: a hidden back face next to a measured surface, see voxel_classes)
@@ -39,9 +39,12 @@ def voxel_classes(data, box: GridBox, opacity, level, fast: dict, meta: dict, of
     from .fast_config import FastConfig
     known = {f.name for f in dataclasses.fields(FastConfig)}
     cfg = FastConfig(**{k: v for k, v in fast.items() if k in known})
-    # labelled as the fit's start field on its final grid (a coarse sensor's seen-free space included)
+    # labelled as the fit's start field on its final grid (a coarse sensor's seen-free space included; blockers
+    # ranked by the same objects' measured points)
     seen = coarse_sensor_seen_free(data, box, cfg, meta)
-    label = configured_evidence_grid(data, box, cfg, offset_m, seen_free=seen)[0].label
+    surface = visible_surface(data, box)
+    measured = objects_measured_points(box, cfg, surface, room_planes(data, box, cfg, surface))
+    label = configured_evidence_grid(data, box, cfg, offset_m, seen_free=seen, measured_points=measured)[0].label
     view = in_view(data, box, meta["camera_to_world"], meta["fov_rad"], meta["fov_axis"])
     occupied = torch.as_tensor(opacity >= level, device=label.device)
     cls = torch.full(box.shape, FREE, dtype=torch.int8, device=label.device)

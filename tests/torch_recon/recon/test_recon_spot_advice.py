@@ -234,3 +234,38 @@ def test_refinement_moves_a_coarse_spot_to_a_better_point_near_it(left_fit, caps
     assert main(["advise-spots", "x", str(out), "--refine-voxels", "-1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "refine_voxels" in err[0]
+
+
+def test_the_advisor_labels_voxels_as_the_fit_s_start_field_does(monkeypatch):
+    """The advisor's labels are the start field's, restored blockers included: the blockers rank by the same
+    objects' measured points (the room's planes left out, `init.objects_measured_points`)."""
+    import dataclasses
+
+    from torch_recon.recon import spot_voxels
+    from torch_recon.recon.config import FastConfig
+    from torch_recon.recon.data import build_ray_data
+    from torch_recon.recon.fields import GridBox
+    from torch_recon.recon.init import grid_bbox, in_view, initial_grid
+    from torch_recon.recon.visible_surface_init import coarse_sensor_seen_free
+    from torch_recon.recon.voxel_evidence import RESTORED
+
+    meas = _measure(LEFT)
+    data = build_ray_data(meas)
+    fc = FastConfig(resolution=40)
+    assert fc.explain_measured_scale_voxels > 0      # the default this test is about
+    box = GridBox(*grid_bbox(data, fc.resolution, fc.bbox_margin_voxels), fc.resolution)
+    meta = {"camera_to_world": np.asarray(meas.camera_to_world), "fov_rad": meas.fov_rad, "fov_axis": meas.fov_axis}
+    view = in_view(data, box, meta["camera_to_world"], meta["fov_rad"], meta["fov_axis"])
+    offset = fc.secondary_offset_voxels * box.voxel
+    start = initial_grid(data, box, fc, offset, view, seen_free=coarse_sensor_seen_free(data, box, fc, meta))[2]
+    labels, wrapped = [], spot_voxels.configured_evidence_grid
+
+    def recorded(*args, **kwargs):
+        out = wrapped(*args, **kwargs)
+        labels.append(out[0].label)
+        return out
+    monkeypatch.setattr(spot_voxels, "configured_evidence_grid", recorded)
+    spot_voxels.voxel_classes(data, box, np.ones(tuple(box.shape), np.float32), 0.5, dataclasses.asdict(fc), meta,
+                              offset)
+    assert int((start.label == RESTORED).sum()) > 0
+    assert torch.equal(labels[0], start.label)
