@@ -69,6 +69,7 @@ def scene_lines(report) -> list:
     surf = report.get("object_metrics", {}).get("scene", {})
     rows += [("spurious surface (> 2 cm), whole mesh", _fmt(surf.get("spurious_fraction"))),
              ("spurious surface, objects' region", _fmt(surf.get("objects_spurious_fraction"))),
+             ("room surface off by > 5 mm (dents, bumps)", _fmt(surf.get("room_off_surface_fraction"))),
              ("normal consistency", _fmt(surf.get("normal_consistency"))),
              ("degenerate faces", _fmt(surf.get("degenerate_faces"), "d"))]
     return rows

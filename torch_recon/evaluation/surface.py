@@ -76,3 +76,21 @@ def surface_metrics(pred_mesh, gt_mesh, threshold_m=0.05, n_samples=100_000, see
     return {"chamfer_m": float(0.5 * (d_pg.mean() + d_gp.mean())), "fscore": float(f), "precision": prec,
             "recall": rec, "accuracy_m": float(d_pg.mean()), "completeness_m": float(d_gp.mean()),
             "fscore_threshold_m": float(threshold_m), "n_samples": [int(len(p)), int(len(g))]}
+
+
+def exact_point_to_mesh_distance(points, mesh, max_pairs: int = 50_000_000):
+    """Distance from points (N, 3) to every face of `mesh` (brute force, in chunks): the exact value that
+    `point_to_mesh_distance` bounds from above. None when N x faces exceeds max_pairs (too slow to ask)."""
+    from trimesh.triangles import closest_point
+    tris = np.asarray(mesh.triangles)
+    if len(points) * len(tris) > max_pairs:
+        return None
+    out = np.full(len(points), np.inf)
+    chunk = max(1, 2_000_000 // max(len(tris), 1))
+    for i in range(0, len(points), chunk):
+        q = np.asarray(points[i:i + chunk], np.float64)
+        qq = np.repeat(q, len(tris), axis=0)
+        d = np.linalg.norm(closest_point(np.tile(tris, (len(q), 1, 1)), qq) - qq, axis=1)
+        out[i:i + chunk] = d.reshape(len(q), len(tris)).min(axis=1)
+    return out
+

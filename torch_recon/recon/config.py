@@ -135,6 +135,9 @@ class FitConfig:
         if not (math.isfinite(scale) and scale >= 0):
             raise SettingsError("fast.explain_measured_scale_voxels",
                                 f"expected voxels >= 0 (0: off), got {self.fast.explain_measured_scale_voxels}")
+        if not (math.isfinite(self.fast.freeze_spot_radius_voxels) and self.fast.freeze_spot_radius_voxels >= 0):
+            raise SettingsError("fast.freeze_spot_radius_voxels",
+                                f"expected voxels >= 0 (0: off), got {self.fast.freeze_spot_radius_voxels}")
         if not self.fast.explain_lead_voxels >= 0:
             raise SettingsError("fast.explain_lead_voxels",
                                 f"expected voxels >= 0 (0: off), got {self.fast.explain_lead_voxels}")

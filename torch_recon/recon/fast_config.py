@@ -170,6 +170,12 @@ class FastConfig:
                                       # thin-structures 0.784 / 0.803 -> 0.788 / 0.832 F@2cm / hidden R (table leg
                                       # kept), cave-chair 0.917 / 0.894, curved-wall 0.920 / 0.928; lamp pole still thin.
                                       # 'frozen' is the default with centre 'mean' (session 10)
+    freeze_spot_radius_voxels: float = 4.0  # voxels within this many voxels of a laser spot keep their start value
+                                      # (gradient masked): every secondary ray of that spot leaves through them, so
+                                      # their summed loss pulls the spot's own (sensor-measured) surface in and
+                                      # training dented the wall 1-1.5 cm at every spot (session 18, "Dents at the
+                                      # laser spots": 2-3 leave a ring at the rim; 4 the start's flatness, six
+                                      # scenes' objects within 0.001); 0: off
     thin_part_half_width_voxels: float = 0.0  # > 0: those voxels start this far inside the surface (a part thinner
                                       # than a voxel); 0: fully occupied. thin-structures 0.3: start better,
                                       # trained worse (F@2cm table 0.792 -> 0.775; training erodes it)

@@ -61,6 +61,21 @@ class GridBox:
         return torch.stack(torch.meshgrid(*axes, indexing="ij"), -1)
 
 
+    def near_points(self, points: torch.Tensor, radius_m: float) -> torch.Tensor:
+        """bool (nx, ny, nz): voxels whose centre lies within radius_m of one of points (N, 3)."""
+        out = torch.zeros(self.shape, dtype=torch.bool, device=self.bbox_min.device)
+        r = int(math.ceil(radius_m / self.voxel)) + 1
+        size = torch.tensor(self.shape)
+        for p in points.to(self.bbox_min):
+            c = torch.floor((p - self.bbox_min) / self.voxel).long().cpu()
+            lo, hi = (c - r).clamp(min=0).minimum(size), (c + r + 1).clamp(min=0).minimum(size)
+            axes = [self.bbox_min[i] + (torch.arange(int(lo[i]), int(hi[i]), device=out.device) + 0.5) * self.voxel
+                    for i in range(3)]
+            centres = torch.stack(torch.meshgrid(*axes, indexing="ij"), -1)
+            out[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]] |= torch.linalg.vector_norm(centres - p, dim=-1) <= radius_m
+        return out
+
+
 def shifted(mask: torch.Tensor, offset, fill: bool = False, pad: int = 1) -> torch.Tensor:
     """mask[v + offset] for every voxel v of a bool (nx, ny, nz) `mask` (offset: 3 ints, each within `pad`); `fill`
     outside the box."""

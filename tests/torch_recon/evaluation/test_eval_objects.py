@@ -116,3 +116,26 @@ def test_empty_reconstruction():
     r = object_surface_metrics(trimesh.Trimesh(), gt, [("box", obj)], sensor, S)
     o = r["objects"]["box"]
     assert o["fscore@5cm"] == 0.0 and o["recall_hidden@5cm"] == 0.0 and o["chamfer_m"] is None
+
+
+def test_a_dent_in_a_wall_is_room_surface_off_by_more_than_5mm():
+    """A 1.2 cm dent 10 cm across in the back wall, far from the box: inside the 2 cm spurious threshold, so only
+    the room's flatness sees it (the dents training made at every laser spot, session 18)."""
+    gt, room, obj, sensor = _scene()
+    exact = object_surface_metrics(gt.copy(), gt, [("box", obj)], sensor, S)["scene"]
+    assert exact["room_off_surface_fraction"] == 0.0 and exact["room_off_surface_exact"]
+    wall = _box((-1, 2, 0.0), (1, 2.02, 1.0))
+    v, f = trimesh.remesh.subdivide_to_size(wall.vertices, wall.faces, max_edge=0.01)
+    dented = trimesh.Trimesh(v, f, process=True)
+    v = dented.vertices.copy()
+    disc = (np.hypot(v[:, 0] - 0.6, v[:, 2] - 0.7) < 0.05) & (v[:, 1] < 2.001)     # the wall's front face only
+    v[disc, 1] += 0.012
+    dented.vertices = v
+    rec = trimesh.util.concatenate([_box((-1, 0, -0.02), (1, 2, 0.0)), dented, obj])
+    scene = object_surface_metrics(rec, gt, [("box", obj)], sensor, S)["scene"]
+    lo, hi = np.asarray(obj.bounds[0]) - S.region_margin_m, np.asarray(obj.bounds[1]) + S.region_margin_m
+    pts, _ = trimesh.sample.sample_surface(rec, 200_000, seed=1)
+    outside = ~np.all((pts >= lo) & (pts <= hi), axis=1)
+    expected = math.pi * 0.05 ** 2 / (rec.area * outside.mean())       # the dent's floor over the room's area
+    assert scene["room_off_surface_fraction"] == pytest.approx(expected, rel=0.5)
+    assert scene["spurious_fraction"] == 0.0                            # 1.2 cm: not spurious at 2 cm

@@ -26,6 +26,7 @@ def _meta(m):
 def frozen_config(steps=20):
     cfg = small_config(steps=steps)
     cfg.fast.freeze_measured = True
+    cfg.fast.freeze_spot_radius_voxels = 0.0      # the measured voxels' mask alone
     return cfg
 
 
@@ -163,3 +164,34 @@ def test_adam_epsilon_must_be_positive():
 
     with pytest.raises(SettingsError, match="fast.adam_eps"):
         override(FitConfig(), ["fast.adam_eps=0"])
+
+
+def test_the_voxels_round_a_laser_spot_keep_their_start_values(meas):
+    """fast.freeze_spot_radius_voxels: every secondary ray of a spot leaves through the voxels round it, whose
+    summed gradient dents the spot's own surface; frozen, they keep their start values, and the rest trains."""
+    moved = []
+    for radius in (0.0, 2.0):
+        cfg = small_config(steps=15)
+        cfg.fast.freeze_spot_radius_voxels = radius
+        data = build_ray_data(meas)
+        start = FastModel(data, cfg, _meta(meas))
+        raw0 = start.grid.raw.detach().clone()
+        box = start.grid.box
+        near = box.near_points(data.spot_points, 2.0 * box.voxel).permute(2, 1, 0)[None, None]
+        assert near.any() and (start.spot_surfaces is None) == (radius == 0)
+        if radius > 0:      # the hook zeroes exactly those voxels
+            start.grid.raw.sum().backward()
+            assert torch.equal(start.grid.raw.grad == 0, near)
+        raw = fit(meas, config=cfg).model.grid.raw.detach()
+        moved.append(int((raw[near] != raw0[near]).sum()))
+        assert (raw[~near] != raw0[~near]).sum() > 10
+    assert moved[0] > 0 and moved[1] == 0, moved       # without the freeze training moves the spots' voxels
+
+
+def test_near_points_is_the_ball_round_each_point():
+    from torch_recon.recon.fields import GridBox
+    box = GridBox([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], 10)
+    pts = torch.tensor([[0.55, 0.55, 0.55], [0.0, 0.0, 0.98]])
+    got = box.near_points(pts, 0.16)
+    d = torch.cdist(box.centres().reshape(-1, 3), pts).min(1).values.reshape(box.shape)
+    assert torch.equal(got, d <= 0.16) and int(got.sum()) > 8
