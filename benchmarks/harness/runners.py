@@ -28,8 +28,8 @@ METRICS = ("depth_l1_m", "depth_psnr_db", "depth_l1_m_on_hits", "hit_fraction", 
            "n_test_views", "n_reconstruction_misses")
 #: the object-level numbers (torch_recon.evaluation.objects; issue 11's targets) a result carries, by object_fields
 OBJECT_FIELDS = ("n_test_views_invalid", "obj_f1cm", "obj_f2cm", "obj_f5cm", "hidden_recall_2cm", "visible_recall_2cm",
-                 "spurious", "objects_spurious", "normal_consistency", "obj_normals", "degenerate_faces",
-                 "objects")
+                 "spurious", "objects_spurious", "room_off_surface", "normal_consistency", "obj_normals",
+                 "degenerate_faces", "objects")
 
 
 class Refused(RuntimeError):
@@ -111,7 +111,7 @@ def combined(*timings: dict) -> dict:
 def object_fields(report: dict) -> dict:
     """OBJECT_FIELDS from an evaluate report (report.json): object F-score at 1 / 2 / 5 cm (mean over the
     scene's objects), hidden / visible recall at 2 cm, spurious-surface fraction (whole mesh, objects'
-    region), normal consistency (whole mesh; per object as obj_normals, the mean over the scene's objects: the
+    region), the room's surface off by more than 5 mm (dents and bumps on walls), normal consistency (whole mesh; per object as obj_normals, the mean over the scene's objects: the
     lumps the distances miss), degenerate faces, the objects' names (None where the dataset has no labels)."""
     om = report.get("object_metrics") or {}
     summ, scene = om.get("summary", {}), om.get("scene", {})
@@ -119,6 +119,7 @@ def object_fields(report: dict) -> dict:
             "obj_f1cm": summ.get("fscore@1cm"), "obj_f2cm": summ.get("fscore@2cm"), "obj_f5cm": summ.get("fscore@5cm"),
             "hidden_recall_2cm": summ.get("recall_hidden@2cm"), "visible_recall_2cm": summ.get("recall_visible@2cm"),
             "spurious": scene.get("spurious_fraction"), "objects_spurious": scene.get("objects_spurious_fraction"),
+            "room_off_surface": scene.get("room_off_surface_fraction"),
             "normal_consistency": scene.get("normal_consistency"),
             "obj_normals": summ.get("normal_consistency"), "degenerate_faces": scene.get("degenerate_faces"),
             "objects": ",".join(om.get("objects", {})) or None}
