@@ -30,6 +30,15 @@ def frozen_config(steps=20):
     return cfg
 
 
+def _start(meas, steps=15, **fast):
+    """(config with these fast settings, its start model, the start's raw density)."""
+    cfg = small_config(steps=steps)
+    for k, v in fast.items():
+        setattr(cfg.fast, k, v)
+    start = FastModel(build_ray_data(meas), cfg, _meta(meas))
+    return cfg, start, start.grid.raw.detach().clone()
+
+
 def test_frozen_voxels_keep_their_start_values_and_the_hidden_hull_trains(meas):
     cfg = frozen_config(15)
     data = build_ray_data(meas)
@@ -68,14 +77,10 @@ def test_anchor_prior_pulls_measured_voxels_back_to_the_start(meas):
     them less (and leaves the hidden hull free)."""
     moved = []
     for w in (0.0, 1.0):
-        cfg = small_config(steps=15)
-        cfg.fast.anchor_weight = w
-        data = build_ray_data(meas)
-        start = FastModel(data, cfg, _meta(meas))
-        raw0 = start.grid.raw.detach().clone()
-        r = fit(meas, config=cfg)
+        cfg, start, raw0 = _start(meas, anchor_weight=w)
+        raw = fit(meas, config=cfg).model.grid.raw.detach()
         measured = (raw0 > cfg.fast.raw_free + 1e-3) & (raw0 < cfg.fast.raw_occupied - 1e-3)
-        moved.append(float((r.model.grid.raw.detach() - raw0)[measured].abs().mean()))
+        moved.append(float((raw - raw0)[measured].abs().mean()))
     assert moved[1] < 0.5 * moved[0], moved     # measured 0.045 (0.149 -> 0.0067 raw units)
 
 
@@ -171,13 +176,9 @@ def test_the_voxels_round_a_laser_spot_keep_their_start_values(meas):
     summed gradient dents the spot's own surface; frozen, they keep their start values, and the rest trains."""
     moved = []
     for radius in (0.0, 2.0):
-        cfg = small_config(steps=15)
-        cfg.fast.freeze_spot_radius_voxels = radius
-        data = build_ray_data(meas)
-        start = FastModel(data, cfg, _meta(meas))
-        raw0 = start.grid.raw.detach().clone()
+        cfg, start, raw0 = _start(meas, freeze_spot_radius_voxels=radius)
         box = start.grid.box
-        near = box.near_points(data.spot_points, 2.0 * box.voxel).permute(2, 1, 0)[None, None]
+        near = box.near_points(start.data.spot_points, 2.0 * box.voxel).permute(2, 1, 0)[None, None]
         assert near.any() and (start.spot_surfaces is None) == (radius == 0)
         if radius > 0:      # the hook zeroes exactly those voxels
             start.grid.raw.sum().backward()
