@@ -57,7 +57,7 @@ class FastConfig:
                                       # puts it in front (the ramp emptied it): at a seat meeting its backrest the
                                       # junction's points carry the seat's normal, and the hull behind the backrest's
                                       # foot started at the surface level (cave-chair's two dents; session 18); 0: off
-    seen_through_voxels: float = 0.0  # > 0: a restored shadow blocker lying more than this (voxels) in front of the
+    seen_through_voxels: float = 0.5  # > 0: a restored shadow blocker lying more than this (voxels) in front of the
                                       # nearest return (earliest returns included) of each of its four nearest pixels
                                       # is dropped (lit-carved again): the sensor saw through it though no pixel ray's
                                       # march crossed its voxel (128 px at 3 m miss every third 3.2 cm voxel column).
