@@ -52,6 +52,19 @@ class FastConfig:
                                       # the white streak at cave-chair's wall foot gone, object metrics within
                                       # 0.001 on six scenes, session 10), 'all' any surface (chair F@2cm 0.818 ->
                                       # 0.802: the chair's own seat/back corner; session 9), 'off'
+    surface_hidden_hull_voxels: float = 0.0  # > 0: a hull voxel lying this far (voxels) behind what its four nearest pixels
+                                      # saw keeps the hull's occupied start where the nearest measured point's plane
+                                      # puts it in front (the ramp emptied it): at a seat meeting its backrest the
+                                      # junction's points carry the seat's normal, and the hull behind the backrest's
+                                      # foot started at the surface level (cave-chair's two dents; session 18); 0: off
+    seen_through_voxels: float = 0.5  # > 0: a restored shadow blocker lying more than this (voxels) in front of the
+                                      # nearest return (earliest returns included) of each of its four nearest pixels
+                                      # is dropped (lit-carved again): the sensor saw through it though no pixel ray's
+                                      # march crossed its voxel (128 px at 3 m miss every third 3.2 cm voxel column).
+                                      # Cave-chair: 24 of the 54 restored voxels > 3.2 cm from any true surface, none of
+                                      # the 364 within 3.2 cm (the columns 5 cm beside the front legs, the layer beside
+                                      # the seat's sides); marking all such voxels camera-free instead cut slits along
+                                      # the room's floor-wall edge (session 18); 0: off
     carve_seen_free_beyond_voxels: float = 1.5  # pixel rays farther apart than this (voxels, at the far surfaces):
                                       # camera carving also empties the voxels between them that the pixels'
                                       # footprints saw through (visible_surface_init.seen_free_points). 64 px on the

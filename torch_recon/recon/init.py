@@ -82,6 +82,57 @@ def _hull_prior(data: RayData, box: GridBox, cfg, label, free, view, sd, shell, 
 
 
 
+def behind_pixels(data: RayData, points: torch.Tensor, k: int = 4, depth: torch.Tensor | None = None,
+                  farthest: bool = True) -> torch.Tensor:
+    """Points (N, 3) -> float64 (N,): how far (m) each lies behind the farthest visible surface its `k` nearest pixel
+    rays (by direction, within three pixels' angle) measured; NaN where one of them measured nothing or the point is
+    outside the image. Positive: hidden behind what the pixels saw, also at a depth edge (one pixel seeing the far
+    side makes it negative). depth: (P,) range per pixel (default the visible depth); farthest False: behind the
+    nearest of the k surfaces instead (negative: in front of every one, the sensor saw through the point)."""
+    from scipy.spatial import cKDTree
+
+    from .data import pixel_angle
+
+    c = data.sensor_origin.detach().cpu().double()
+    rel = points.detach().cpu().double().reshape(-1, 3) - c
+    r = rel.norm(dim=1).numpy()
+    if len(r) == 0:
+        return torch.zeros(0, dtype=torch.float64)
+    dirs = data.pixel_dirs.detach().cpu().double().numpy()
+    dist, j = cKDTree(dirs).query((rel / rel.norm(dim=1).clamp(min=1e-12)[:, None]).numpy(), k=min(k, len(dirs)))
+    dist, j = dist.reshape(len(r), -1), j.reshape(len(r), -1)
+    rng = data.visible_depth if depth is None else depth
+    depth = rng.detach().cpu().double().numpy()[np.minimum(j, len(dirs) - 1)]
+    reach = 2.0 * np.sin(1.5 * (pixel_angle(data, at_centre=True) or 1e-3))     # chord of three pixels' angle
+    seen = np.isfinite(dist).all(1) & (dist.max(1) <= reach) & np.isfinite(depth).all(1)
+    surface = np.where(np.isfinite(depth), depth, 0.0)
+    return torch.as_tensor(np.where(seen, r - (surface.max(1) if farthest else surface.min(1)), np.nan))
+
+
+def _ramp_in_front_of_hidden(data: RayData, box: GridBox, sd: torch.Tensor, label: torch.Tensor, margin_m: float,
+                             reach_m: float) -> torch.Tensor:
+    """Hull voxels (nx, ny, nz bool) the nearest measured point's plane puts in front of the surface (sd < 0) though
+    they lie more than `margin_m` behind the surface their own pixels saw, and within `reach_m` of it (the ramp's
+    surface, not a wall far behind an object): the plane is another face's (a concave junction's points carry the
+    seat's normal at its backrest's foot), and the hull, not that ramp, decides them."""
+    cand = torch.isfinite(sd) & (sd < 0) & (label == 0)
+    out = torch.zeros_like(cand)
+    if bool(cand.any()):
+        behind = behind_pixels(data, box.centres()[cand.to(box.bbox_min.device)])
+        out[cand] = ((behind > margin_m) & (behind <= reach_m)).to(out.device)
+    return out
+
+
+def seen_through(data: RayData, points: torch.Tensor, margin_m: float, nearest_free: bool = True) -> torch.Tensor:
+    """Points (N, 3) -> bool (N,): each lies more than `margin_m` in front of the surface every one of its four
+    nearest pixels measured (`behind_pixels`, the nearest of them; with `nearest_free` a thin part's earliest return
+    counts): the sensor saw through it, also where no pixel ray's march crossed its voxel."""
+    depth = data.visible_depth
+    if nearest_free and data.nearest_depth is not None:
+        depth = torch.fmin(data.nearest_depth, depth)
+    return (behind_pixels(data, points, depth=depth, farthest=False) < -margin_m).to(points.device)
+
+
 #: spots whose secondary rays must cross a voxel outside the camera's view for it to count as measured
 MIN_SPOTS_BEYOND_VIEW = 2
 
@@ -160,6 +211,11 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
                                                       count_shadow=cfg.trim_hull_voxels > 0, thin_points=thin_points,
                                                       measured_points=measured)
     label = evidence.label
+    if cfg.seen_through_voxels > 0:     # the sensor saw through it: no shadow's blocker, lit-carved as before
+        restored = label == RESTORED
+        seen = seen_through(data, box.centres()[restored.to(box.bbox_min.device)],
+                            cfg.seen_through_voxels * box.voxel, cfg.nearest_free).to(label.device)
+        label[restored] = torch.where(seen, torch.tensor(3, dtype=label.dtype, device=label.device), label[restored])
     free = (label == 2) | (label == 3)
     dev = data.pixel_dirs.device
     corners = cfg.surface_concave_corners
@@ -211,6 +267,9 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
         # the object's silhouette, must not fill it (at 512 px it fattened resolved legs and chair backs)
         near = (torch.isfinite(sd) & ((label != 3) | (sd <= 0.5 * box.voxel)) & ((label != 2) | (sd <= 0))
                 & (label != RESTORED) & (label != NEAREST))
+        if cfg.surface_hidden_hull_voxels > 0:
+            near &= ~_ramp_in_front_of_hidden(data, box, sd, label, cfg.surface_hidden_hull_voxels * box.voxel,
+                                              (cfg.surface_half_width_voxels + 1.0) * box.voxel)
         raw = torch.where(near, ramp(sd), raw)
     if cfg.thin_part_raw != cfg.raw_occupied:
         raw = torch.where(label == NEAREST, torch.tensor(cfg.thin_part_raw, device=dev), raw)

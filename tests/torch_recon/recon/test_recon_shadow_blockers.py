@@ -103,12 +103,19 @@ def test_the_model_keeps_the_start_fields_restored_blockers_without_labelling_ag
         return out
 
     monkeypatch.setattr(init, "configured_evidence_grid", counted)
-    cfg = small_config(steps=10)
-    cfg.fast.resolution = 32
-    model = FastModel(_wall_post_data(), cfg, _meta())
-    assert len(labels) == 1
-    restored = model.start_evidence().restored
-    assert len(labels) == 1 and torch.equal(restored, labels[0] == RESTORED)
+    for seen_through in (0.0, 0.5):     # the start drops the restored blockers the pixels saw through (session 18)
+        labels.clear()
+        cfg = small_config(steps=10)
+        cfg.fast.resolution = 32
+        cfg.fast.seen_through_voxels = seen_through
+        model = FastModel(_wall_post_data(), cfg, _meta())
+        assert len(labels) == 1
+        restored = model.start_evidence().restored
+        assert len(labels) == 1
+        if seen_through == 0:
+            assert torch.equal(restored, labels[0] == RESTORED)
+        else:
+            assert not bool((restored & (labels[0] != RESTORED)).any())
 
 
 def test_a_negative_restored_run_length_is_refused():
