@@ -5,7 +5,8 @@ Definitions (all distances point-to-triangle, metres; samples area-weighted and 
   torch_recon.contract.scene_objects when a dataset has no labels). Everything else in the GT is the room.
 - An object's region: its bounding box grown by `region_margin_m` on every side.
 - Contact points: GT object samples within `contact_m` of another GT surface (a box's bottom on the floor,
-  a chair leg's foot) are left out of recall: no sensor can see them and no method is asked to.
+  a chair leg's foot) or of another part of the same object (its connected components: a backrest's foot on the
+  seat, a leg's top under it) are left out of recall: no sensor can see them and no method is asked to.
 - Sensor-visible GT points: inside the sensor's field of view, facing the sensor, and not occluded (an Embree
   ray from the sensor reaches them). All other (non-contact) GT points are hidden.
 - Per object, for thresholds tau in `thresholds_m`:
@@ -222,6 +223,7 @@ def object_surface_metrics(recon, gt_mesh, objects, sensor=None, settings: Objec
                             s.seed + 30 + i) if rest is not None else None
         g_pts, g_faces = os_.samples, os_.sample_faces
         contact = (rest_surf.distance(g_pts) < s.contact_m) if rest_surf is not None else np.zeros(len(g_pts), bool)
+        contact |= part_contact(os_.mesh, g_pts, g_faces, s.contact_m)
         g_pts, g_faces = g_pts[~contact], g_faces[~contact]
         vis = sensor_visible(g_pts, os_.mesh.face_normals[g_faces], gt_mesh, sensor)
         res = {"n_gt_points": int(len(g_pts)), "n_contact_points": int(contact.sum()),
@@ -254,6 +256,27 @@ def object_surface_metrics(recon, gt_mesh, objects, sensor=None, settings: Objec
             res[f"recall_hidden@{k}"] = float((d_gr[~vis] < t).mean()) if (~vis).any() else None
         out["objects"][name] = res
     out["summary"] = _summary(out["objects"], s.thresholds_m)
+    return out
+
+
+def part_contact(mesh, points, faces, contact_m: float) -> np.ndarray:
+    """bool (N,): points (sampled on `faces` of an object's mesh) within contact_m of another of the object's parts
+    (connected components: a chair's backrest standing on its seat, a leg under it). The faces where parts meet lie
+    inside the solid: no sensor sees them, as no sensor sees a box's bottom on the floor."""
+    import trimesh
+    merged = mesh.copy()
+    merged.merge_vertices()         # keeps the face order: labels index the samples' faces
+    label = trimesh.graph.connected_component_labels(merged.face_adjacency, node_count=len(merged.faces))
+    out = np.zeros(len(points), bool)
+    if label.max(initial=0) == 0:
+        return out
+    for part in np.unique(label):
+        on = label[faces] == part
+        others = merged.submesh([np.flatnonzero(label != part)], append=True)
+        d = exact_point_to_mesh_distance(points[on], others)
+        if d is None:       # a large object: the candidate-face distance (an upper bound)
+            d = Surface(others, sample_count(others.area, 40_000, 2000, 200_000), 0).distance(points[on])
+        out[on] = d < contact_m
     return out
 
 

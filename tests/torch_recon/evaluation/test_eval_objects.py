@@ -139,3 +139,17 @@ def test_a_dent_in_a_wall_is_room_surface_off_by_more_than_5mm():
     expected = math.pi * 0.05 ** 2 / (rec.area * outside.mean())       # the dent's floor over the room's area
     assert scene["room_off_surface_fraction"] == pytest.approx(expected, rel=0.5)
     assert scene["spurious_fraction"] == 0.0                            # 1.2 cm: not spurious at 2 cm
+
+
+def test_faces_where_an_object_s_parts_meet_are_contact():
+    """Two boxes stacked as one object (a backrest on a seat): the lower one's top and the upper one's bottom meet
+    inside the solid; like the bottom on the floor they are contact points, left out of recall."""
+    gt, room, obj, sensor = _scene()
+    lower, upper = _box((-0.25, 0.75, 0.0), (0.25, 1.25, 0.25)), _box((-0.25, 0.75, 0.25), (0.25, 1.25, 0.5))
+    stacked = trimesh.util.concatenate([lower, upper])         # two parts (connected components), 2.0 m^2
+    gt = trimesh.util.concatenate([room, stacked])
+    o = object_surface_metrics(gt.copy(), gt, [("stack", stacked)], sensor, S)["objects"]["stack"]
+    share = o["n_contact_points"] / (o["n_contact_points"] + o["n_gt_points"])
+    # the floor contact, the two faces that meet, 1 cm strips of the sides at the floor and at the joint
+    assert share == pytest.approx((0.25 + 0.25 + 0.25 + 0.02 + 0.04) / 2.0, abs=0.02)
+    assert o["recall_hidden@0.5cm"] > 0.999
