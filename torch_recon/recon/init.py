@@ -22,6 +22,7 @@ from .fields import DensityGrid, GridBox, dilate_cube
 from .segment_crossings import pair_segments, spot_crossings
 from .thin_parts import thin_part_signed_distance
 from .visible_surface_init import surface_offset, surface_signed_distance, visible_surface
+from .behind_pixels import behind_pixels
 from .voxel_evidence import NEAREST, RESTORED, carving_pixel_mask, configured_evidence_grid
 
 
@@ -82,33 +83,6 @@ def _hull_prior(data: RayData, box: GridBox, cfg, label, free, view, sd, shell, 
 
 
 
-def behind_pixels(data: RayData, points: torch.Tensor, k: int = 4, depth: torch.Tensor | None = None,
-                  farthest: bool = True) -> torch.Tensor:
-    """Points (N, 3) -> float64 (N,): how far (m) each lies behind the farthest visible surface its `k` nearest pixel
-    rays (by direction, within three pixels' angle) measured; NaN where one of them measured nothing or the point is
-    outside the image. Positive: hidden behind what the pixels saw, also at a depth edge (one pixel seeing the far
-    side makes it negative). depth: (P,) range per pixel (default the visible depth); farthest False: behind the
-    nearest of the k surfaces instead (negative: in front of every one, the sensor saw through the point)."""
-    from scipy.spatial import cKDTree
-
-    from .data import pixel_angle
-
-    c = data.sensor_origin.detach().cpu().double()
-    rel = points.detach().cpu().double().reshape(-1, 3) - c
-    r = rel.norm(dim=1).numpy()
-    if len(r) == 0:
-        return torch.zeros(0, dtype=torch.float64)
-    dirs = data.pixel_dirs.detach().cpu().double().numpy()
-    dist, j = cKDTree(dirs).query((rel / rel.norm(dim=1).clamp(min=1e-12)[:, None]).numpy(), k=min(k, len(dirs)))
-    dist, j = dist.reshape(len(r), -1), j.reshape(len(r), -1)
-    rng = data.visible_depth if depth is None else depth
-    depth = rng.detach().cpu().double().numpy()[np.minimum(j, len(dirs) - 1)]
-    reach = 2.0 * np.sin(1.5 * (pixel_angle(data, at_centre=True) or 1e-3))     # chord of three pixels' angle
-    seen = np.isfinite(dist).all(1) & (dist.max(1) <= reach) & np.isfinite(depth).all(1)
-    surface = np.where(np.isfinite(depth), depth, 0.0)
-    return torch.as_tensor(np.where(seen, r - (surface.max(1) if farthest else surface.min(1)), np.nan))
-
-
 def _ramp_in_front_of_hidden(data: RayData, box: GridBox, sd: torch.Tensor, label: torch.Tensor, margin_m: float,
                              reach_m: float) -> torch.Tensor:
     """Hull voxels (nx, ny, nz bool) the nearest measured point's plane puts in front of the surface (sd < 0) though
@@ -121,16 +95,6 @@ def _ramp_in_front_of_hidden(data: RayData, box: GridBox, sd: torch.Tensor, labe
         behind = behind_pixels(data, box.centres()[cand.to(box.bbox_min.device)])
         out[cand] = ((behind > margin_m) & (behind <= reach_m)).to(out.device)
     return out
-
-
-def seen_through(data: RayData, points: torch.Tensor, margin_m: float, nearest_free: bool = True) -> torch.Tensor:
-    """Points (N, 3) -> bool (N,): each lies more than `margin_m` in front of the surface every one of its four
-    nearest pixels measured (`behind_pixels`, the nearest of them; with `nearest_free` a thin part's earliest return
-    counts): the sensor saw through it, also where no pixel ray's march crossed its voxel."""
-    depth = data.visible_depth
-    if nearest_free and data.nearest_depth is not None:
-        depth = torch.fmin(data.nearest_depth, depth)
-    return (behind_pixels(data, points, depth=depth, farthest=False) < -margin_m).to(points.device)
 
 
 #: spots whose secondary rays must cross a voxel outside the camera's view for it to count as measured
@@ -211,11 +175,6 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
                                                       count_shadow=cfg.trim_hull_voxels > 0, thin_points=thin_points,
                                                       measured_points=measured)
     label = evidence.label
-    if cfg.seen_through_voxels > 0:     # the sensor saw through it: no shadow's blocker, lit-carved as before
-        restored = label == RESTORED
-        seen = seen_through(data, box.centres()[restored.to(box.bbox_min.device)],
-                            cfg.seen_through_voxels * box.voxel, cfg.nearest_free).to(label.device)
-        label[restored] = torch.where(seen, torch.tensor(3, dtype=label.dtype, device=label.device), label[restored])
     free = (label == 2) | (label == 3)
     dev = data.pixel_dirs.device
     corners = cfg.surface_concave_corners

@@ -220,8 +220,9 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
 def configured_evidence_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float, seen_free=None,
                              count_shadow: bool = False, thin_points=None, measured_points=None):
     """`evidence_grid` with a FastConfig's settings: the one place that maps the settings onto its arguments
-    (the start field and the spot advisor both label voxels this way)."""
-    return evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m,
+    (the start field and the spot advisor both label voxels this way). With `fast.seen_through_voxels` a restored
+    blocker the sensor saw through (`behind_pixels.seen_through`) is no shadow's blocker: lit-free as before."""
+    evidence, shadow_count = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m,
                          cfg.step_voxels, cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
                          count_shadow=count_shadow, explain_shadow_rays=cfg.explain_shadows,
                          explain_camera_free=cfg.explain_camera_free, explain_score=cfg.explain_score,
@@ -234,4 +235,12 @@ def configured_evidence_grid(data: RayData, box: GridBox, cfg, secondary_offset_
                          explain_shared_cluster_voxels=cfg.explain_shared_cluster_voxels,
                          explain_measured_scale_voxels=cfg.explain_measured_scale_voxels,
                          measured_points=measured_points)
+    label = evidence.label
+    if cfg.seen_through_voxels > 0:
+        from .behind_pixels import seen_through
+        restored = label == RESTORED
+        seen = seen_through(data, box.centres()[restored.to(box.bbox_min.device)],
+                            cfg.seen_through_voxels * box.voxel, cfg.nearest_free).to(label.device)
+        label[restored] = torch.where(seen, torch.tensor(3, dtype=label.dtype, device=label.device), label[restored])
+    return evidence, shadow_count
 

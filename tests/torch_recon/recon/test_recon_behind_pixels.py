@@ -1,4 +1,4 @@
-"""Where a voxel lies against what its own pixels measured (`init.behind_pixels`, session 18): the hidden hull behind
+"""Where a voxel lies against what its own pixels measured (`behind_pixels.py`, session 18): the hidden hull behind
 a seen surface keeps its occupied start where the nearest measured point's plane (another face's: a seat's top at its
 backrest's foot) puts it in front (`fast.surface_hidden_hull_voxels`: cave-chair's two dents at the backrest's lower
 edge); a restored shadow blocker the sensor saw through is dropped (`fast.seen_through_voxels`: the columns beside
@@ -31,7 +31,7 @@ def _wall_seen():
 
 
 def test_how_far_a_point_lies_behind_what_its_pixels_saw():
-    from torch_recon.recon.init import behind_pixels
+    from torch_recon.recon.behind_pixels import behind_pixels
 
     data = _wall_seen()
     c = POST_SENSOR
@@ -71,7 +71,7 @@ def test_hull_behind_a_seen_surface_keeps_its_start_where_another_faces_plane_sa
 
 
 def test_a_point_the_pixels_saw_through_unless_a_thin_parts_earliest_return_lies_before_it():
-    from torch_recon.recon.init import seen_through
+    from torch_recon.recon.behind_pixels import seen_through
 
     data = _wall_seen()
     c = POST_SENSOR
