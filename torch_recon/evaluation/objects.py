@@ -22,7 +22,8 @@ Definitions (all distances point-to-triangle, metres; samples area-weighted and 
   objects' regions; room_off_surface_fraction = share of the reconstruction outside every object's region
   (walls, floor, ceiling) farther than `room_flat_m` from any GT surface: the dents and bumps on planar
   surfaces that the 2 cm spurious threshold misses (room_off_surface_exact: false where the GT was too large
-  to measure the candidates exactly, then an upper bound); normal_consistency = mean |n_rec . n_gt| of nearest faces, both directions averaged;
+  to measure the candidates exactly, then an upper bound);
+  normal_consistency = mean |n_rec . n_gt| of nearest faces, both directions averaged;
   degenerate_faces = faces of area <= `degenerate_area_m2` (or non-finite vertices).
 """
 

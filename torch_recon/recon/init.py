@@ -17,12 +17,12 @@ import numpy as np
 import torch
 
 from ..contract.errors import UnconstrainedMeasurementsError
+from .behind_pixels import behind_pixels
 from .data import RayData
 from .fields import DensityGrid, GridBox, dilate_cube
 from .segment_crossings import pair_segments, spot_crossings
 from .thin_parts import thin_part_signed_distance
 from .visible_surface_init import surface_offset, surface_signed_distance, visible_surface
-from .behind_pixels import behind_pixels
 from .voxel_evidence import NEAREST, RESTORED, carving_pixel_mask, configured_evidence_grid
 
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from .behind_pixels import seen_through
 from .data import RayData, lit_path_tolerance, pixel_angle, unexplained_lit
 from .fields import GridBox
 from .sampler import ray_box
@@ -222,22 +223,19 @@ def configured_evidence_grid(data: RayData, box: GridBox, cfg, secondary_offset_
     """`evidence_grid` with a FastConfig's settings: the one place that maps the settings onto its arguments
     (the start field and the spot advisor both label voxels this way). With `fast.seen_through_voxels` a restored
     blocker the sensor saw through (`behind_pixels.seen_through`) is no shadow's blocker: lit-free as before."""
-    evidence, shadow_count = evidence_grid(data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m,
-                         cfg.step_voxels, cfg.carve_core, carve_spacing_voxels=cfg.carve_spacing_voxels,
-                         count_shadow=count_shadow, explain_shadow_rays=cfg.explain_shadows,
-                         explain_camera_free=cfg.explain_camera_free, explain_score=cfg.explain_score,
-                         nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface,
-                         seen_free=seen_free, thin_part_edges=cfg.thin_part_edges,
-                         thin_part_centre=cfg.thin_part_centre, explain_lead_voxels=cfg.explain_lead_voxels,
-                         thin_points=thin_points,
-                         lit_path_tolerance_m=lit_path_tolerance(data, box.voxel, cfg.lit_path_tolerance_voxels),
-                         explain_neighbour_power=cfg.explain_neighbour_power,
-                         explain_shared_cluster_voxels=cfg.explain_shared_cluster_voxels,
-                         explain_measured_scale_voxels=cfg.explain_measured_scale_voxels,
-                         measured_points=measured_points)
+    evidence, shadow_count = evidence_grid(
+        data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m, cfg.step_voxels, cfg.carve_core,
+        carve_spacing_voxels=cfg.carve_spacing_voxels, count_shadow=count_shadow,
+        explain_shadow_rays=cfg.explain_shadows, explain_camera_free=cfg.explain_camera_free,
+        explain_score=cfg.explain_score, nearest_free=cfg.nearest_free, nearest_surface=cfg.nearest_surface,
+        seen_free=seen_free, thin_part_edges=cfg.thin_part_edges, thin_part_centre=cfg.thin_part_centre,
+        explain_lead_voxels=cfg.explain_lead_voxels, thin_points=thin_points,
+        lit_path_tolerance_m=lit_path_tolerance(data, box.voxel, cfg.lit_path_tolerance_voxels),
+        explain_neighbour_power=cfg.explain_neighbour_power,
+        explain_shared_cluster_voxels=cfg.explain_shared_cluster_voxels,
+        explain_measured_scale_voxels=cfg.explain_measured_scale_voxels, measured_points=measured_points)
     label = evidence.label
     if cfg.seen_through_voxels > 0:
-        from .behind_pixels import seen_through
         restored = label == RESTORED
         seen = seen_through(data, box.centres()[restored.to(box.bbox_min.device)],
                             cfg.seen_through_voxels * box.voxel, cfg.nearest_free).to(label.device)
