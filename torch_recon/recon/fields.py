@@ -60,7 +60,6 @@ class GridBox:
                 for i, n in enumerate(self.shape)]
         return torch.stack(torch.meshgrid(*axes, indexing="ij"), -1)
 
-
     def near_points(self, points: torch.Tensor, radius_m: float) -> torch.Tensor:
         """bool (nx, ny, nz): voxels whose centre lies within radius_m of one of points (N, 3)."""
         out = torch.zeros(self.shape, dtype=torch.bool, device=self.bbox_min.device)

@@ -160,10 +160,11 @@ class FastModel(ReconstructionModel):
         round the laser spots (`fast.freeze_spot_radius_voxels`) and on thin parts (`fast.thin_part_training`: all
         of it when 'frozen', the part pushing them down when 'grow'); Adam's step follows the sign of its masked
         gradient, so a zeroed direction never moves. The caller's gradient is left alone."""
+        caller = g      # copied once, before the first in-place change
         if self.trainable is not None and self.fc.freeze_measured:
             g = g * self.trainable.to(g.dtype)
         if self.spot_surfaces is not None:
-            g = g.clone()
+            g = g.clone() if g is caller else g
             g.view(-1).index_fill_(0, self.spot_surfaces.to(g.device), 0.0)
         if self.thin_parts is not None:
             # the same values as g.masked_fill(stop, 0.0), at the thin parts' few voxels instead of the whole grid
@@ -171,7 +172,7 @@ class FastModel(ReconstructionModel):
             if self._thin_index is None or self._thin_index[0] is not self.thin_parts:
                 self._thin_index = (self.thin_parts, torch.nonzero(self.thin_parts.reshape(-1)).reshape(-1))
             idx = self._thin_index[1].to(g.device)
-            g = g.clone()
+            g = g.clone() if g is caller else g
             flat = g.view(-1)
             if self.fc.thin_part_training == "frozen":
                 flat.index_fill_(0, idx, 0.0)
