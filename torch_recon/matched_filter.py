@@ -11,7 +11,7 @@ import numpy as np
 
 from .contract.dataset.transient import Transient
 from .contract.errors import PreprocessError
-from .first_bounce import FirstBounce, SubBinLUT, subbin_offset
+from .first_bounce import CENTROID_HALF_WIDTH, FirstBounce, SubBinLUT, centroid_offset, subbin_offset
 from .shadow_decision import FilterOutput, pooled_background
 
 if TYPE_CHECKING:
@@ -111,10 +111,19 @@ def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: Prepro
             # the raw maximum next to the filter peak k, then its sub-bin offset from 3 bins
             idx = k[:, None] + hw + torch.arange(-1, 2, device=device)
             kk = (k + torch.gather(xp, 1, idx).argmax(dim=1) - 1).clamp(0, gg - 1)
-            three = torch.gather(xp, 1, kk[:, None] + hw + torch.arange(-1, 2, device=device))
-            if subtract:
-                three = (three - (bg / gg)[:, None]).clamp_min(0)
-            off = subbin_offset(three[:, 0], three[:, 1], three[:, 2], settings.refine, lut, torch)
+            if settings.return_centroid_fraction > 0:
+                cw = CENTROID_HALF_WIDTH
+                at = kk[:, None] + hw + torch.arange(-cw, cw + 1, device=device)
+                inside = (at >= 0) & (at < xp.shape[1])
+                win = torch.gather(xp, 1, at.clamp(0, xp.shape[1] - 1)) * inside
+                if counting:
+                    win = (win - (bg / gg)[:, None]).clamp_min(0)
+                off = centroid_offset(win, settings.return_centroid_fraction, torch)
+            else:
+                three = torch.gather(xp, 1, kk[:, None] + hw + torch.arange(-1, 2, device=device))
+                if subtract:
+                    three = (three - (bg / gg)[:, None]).clamp_min(0)
+                off = subbin_offset(three[:, 0], three[:, 1], three[:, 2], settings.refine, lut, torch)
             return sensor.start_m + (base + kk).to(torch.float64) * bw + (0.5 + off.to(torch.float64)) * bw
 
         p = peak_path(k)

@@ -55,6 +55,9 @@ class PreprocessSettings:
     shadow_threshold: float = 0.15     # matched-filter confidence below this -> shadow (paper: 0.15)
     parallel_sin: float = 0.05         # exclude pixels within asin(this) of the ray c -> l (paper: 0.05)
     refine: str = "lut"                # sub-bin peak: 'lut' | 'gaussian' | 'parabola' | 'none'
+    return_centroid_fraction: float = 0.05  # > 0: a two-bounce path is its return's intensity centroid over the
+                                       # bins above this x its maximum (first_bounce.centroid_offset: a grazing
+                                       # pixel's flat-topped return); 0: the 3-bin `refine` fit
     pulse_half_width_bins: int = 3     # pulse template = 2 h + 1 bins around the first-bounce peak
     gate_max_m: float | None = None    # ignore returns beyond this optical path (None: end of histogram)
     background: str = "none"           # 'median': subtract each pixel's median before the filter
@@ -114,6 +117,8 @@ class PreprocessSettings:
             raise PreprocessError(f"partial_unlabel_ratio must be in [0, 1), got {self.partial_unlabel_ratio}")
         if not (self.partial_shadow_z >= 0 and self.same_surface_bins > 0):
             raise PreprocessError("partial_shadow_z must be >= 0 and same_surface_bins > 0")
+        if not 0.0 <= self.return_centroid_fraction < 1.0:
+            raise PreprocessError(f"return_centroid_fraction must be in [0, 1) (0: off), got {self.return_centroid_fraction}")
         if self.pulse_half_width_bins < 1:
             raise PreprocessError("pulse_half_width_bins must be >= 1")
 

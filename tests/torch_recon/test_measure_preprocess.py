@@ -45,17 +45,17 @@ def occluder_ds(tmp_path_factory):
     return load_dataset(path), parts
 
 
-@pytest.mark.parametrize("refine,tol_mm", [("lut", 0.5), ("gaussian", 2.0)])
-def test_subbin_path_and_first_bounce_on_a_plane(plane_ds, refine, tol_mm):
+@pytest.mark.parametrize("refine,centroid,tol_mm", [("lut", 0.0, 0.5), ("gaussian", 0.0, 2.0), ("lut", 0.05, 0.5)])
+def test_subbin_path_and_first_bounce_on_a_plane(plane_ds, refine, centroid, tol_mm):
     ds, parts = plane_ds
-    m = preprocess_dataset(ds, PreprocessSettings(refine=refine))
+    m = preprocess_dataset(ds, PreprocessSettings(refine=refine, return_centroid_fraction=centroid))
     for sm, sp, exp in zip(m.spots, parts["spots"], _expected_paths(parts, ds.sensor)):
         assert np.linalg.norm(sm.first_bounce - sp.first_bounce) < tol_mm * 1e-3
         err = np.abs(sm.path_length - exp)[sm.signal]
         assert sm.signal.sum() > 0.3 * sm.signal.size
         assert np.max(err) < tol_mm * 1e-3, (refine, np.max(err))
     # no refinement: the bin centre is within half a bin (+ float slack)
-    m0 = preprocess_dataset(ds, PreprocessSettings(refine="none"))
+    m0 = preprocess_dataset(ds, PreprocessSettings(refine="none", return_centroid_fraction=0.0))
     err0 = np.abs(m0.spots[0].path_length - _expected_paths(parts, ds.sensor)[0])[m0.spots[0].signal]
     assert err0.max() <= 0.5 * ds.sensor.bin_width_m + 1e-4
     assert err0.mean() > 3 * tol_mm * 1e-3     # refinement did something
@@ -213,6 +213,8 @@ def test_bad_settings_are_refused(plane_ds):
         preprocess_dataset(ds, PreprocessSettings(shadow_threshold=1.5))
     with pytest.raises(PreprocessError, match="refine"):
         preprocess_dataset(ds, PreprocessSettings(refine="cubic"))
+    with pytest.raises(PreprocessError, match="return_centroid_fraction"):
+        preprocess_dataset(ds, PreprocessSettings(return_centroid_fraction=1.0))
 
 
 def test_first_bounce_next_to_the_projected_pixel():

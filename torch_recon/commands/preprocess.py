@@ -8,6 +8,7 @@ from ..preprocess import PreprocessSettings
 from . import DEVICE_FLAGS, DeviceSettings, add_stage
 
 PREPROCESS_FLAGS = ("preprocess.shadow_threshold", "preprocess.parallel_sin", "preprocess.refine",
+                    "preprocess.return_centroid_fraction",
                     "preprocess.background", "preprocess.gate_max_m")
 
 
