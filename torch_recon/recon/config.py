@@ -138,6 +138,9 @@ class FitConfig:
         if not (math.isfinite(self.fast.freeze_spot_radius_voxels) and self.fast.freeze_spot_radius_voxels >= 0):
             raise SettingsError("fast.freeze_spot_radius_voxels",
                                 f"expected voxels >= 0 (0: off), got {self.fast.freeze_spot_radius_voxels}")
+        if not (math.isfinite(self.fast.plane_refit_mad) and self.fast.plane_refit_mad >= 0):
+            raise SettingsError("fast.plane_refit_mad",
+                                f"expected robust standard deviations >= 0 (0: off), got {self.fast.plane_refit_mad}")
         if not self.fast.explain_lead_voxels >= 0:
             raise SettingsError("fast.explain_lead_voxels",
                                 f"expected voxels >= 0 (0: off), got {self.fast.explain_lead_voxels}")

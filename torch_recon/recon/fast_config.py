@@ -217,6 +217,11 @@ class FastConfig:
     plane_min_support: float = 0.03   # a plane needs this fraction of the visible points (RANSAC inliers)
     plane_tolerance_voxels: float = 0.5  # RANSAC inlier distance; a bounding plane has no point or spot
                                          # more than twice this behind it
+    plane_refit_mad: float = 3.0      # each bounding plane fitted again to its inliers within this many robust standard
+                                      # deviations of their own scatter (0: RANSAC's fit to all inliers within the
+                                      # tolerance). The floor's grazing far rows and junctions (a few mm short)
+                                      # tilted it: continued to the sensor it lay 4.8 mm low, dark-room's out-of-view
+                                      # floor > 5 mm off; refitted 0.8 mm (session 19, docs/reconstruction.md)
     plane_free_band_voxels: float = 2.0  # the mesh keeps faces facing completed empty space this close
                                          # to a completed plane
     # --- surface placement of the mesh (recon/models.py surface_volume) ---
