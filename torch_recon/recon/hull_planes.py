@@ -41,8 +41,8 @@ def set_plane_snap(model, inward, max_voxels: float) -> None:
 
 
 def snap_to_planes(mesh, placed: np.ndarray, lo, spacing, normals: np.ndarray, offsets: np.ndarray, max_m: float):
-    """In place: `mesh`'s vertices no `placed` voxel pins (`hull_unplaced.placed_vertices`) within `max_m` of a plane
-    (n . x = offset, unit `normals` (P, 3) facing free space) and with their normal within 20 degrees of n go onto it."""
+    """In place: `mesh`'s vertices no `placed` voxel pins (`hull_unplaced.placed_vertices`) within `max_m` of a
+    plane (n . x = offset, unit `normals` (P, 3) facing free space), their normal within 20 degrees of n, go onto it."""
     from .hull_unplaced import placed_vertices
 
     if len(mesh.faces) == 0 or len(offsets) == 0:
