@@ -79,6 +79,9 @@ class InwardSmoothing:
     placed: np.ndarray | None = None  # hull_unplaced.py): not beside these voxels (bool, volume shape), each at most
     camera_free: np.ndarray | None = None  # unplaced_max_move_m from its start and never into these voxels
     unplaced_max_move_m: float = 0.0
+    plane_normals: np.ndarray | None = None  # optional (P, 3), with plane_offsets (P,): unplaced vertices within
+    plane_offsets: np.ndarray | None = None  # plane_snap_m of a plane bounding the observation, facing its way, go
+    plane_snap_m: float = 0.0                # onto it (recon/hull_planes.py)
 
 
 def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: bool = True,
@@ -147,6 +150,10 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
             from .recon.hull_unplaced import unplaced_taubin
             unplaced_taubin(mesh, np.asarray(inward.placed, bool), np.asarray(inward.camera_free, bool), lo, spacing,
                             int(inward.unplaced_iterations), float(inward.unplaced_max_move_m))
+        if inward.plane_snap_m > 0:
+            from .recon.hull_planes import snap_to_planes
+            snap_to_planes(mesh, np.asarray(inward.placed, bool), lo, spacing, inward.plane_normals,
+                           inward.plane_offsets, float(inward.plane_snap_m))
     removed = 0
     if min_island_fraction > 0 and len(mesh.faces):
         # islands = faces connected through shared edges (as mesh.split), labelled in one pass: split builds a

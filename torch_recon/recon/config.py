@@ -138,6 +138,12 @@ class FitConfig:
         if not (math.isfinite(self.fast.freeze_spot_radius_voxels) and self.fast.freeze_spot_radius_voxels >= 0):
             raise SettingsError("fast.freeze_spot_radius_voxels",
                                 f"expected voxels >= 0 (0: off), got {self.fast.freeze_spot_radius_voxels}")
+        if not (math.isfinite(self.fast.mesh_plane_snap_voxels) and 0 <= self.fast.mesh_plane_snap_voxels <= 2):
+            raise SettingsError("fast.mesh_plane_snap_voxels", f"expected voxels in [0, 2] (0: off), got "
+                                                               f"{self.fast.mesh_plane_snap_voxels}")
+        if not (math.isfinite(self.fast.plane_refit_mad) and self.fast.plane_refit_mad >= 0):
+            raise SettingsError("fast.plane_refit_mad",
+                                f"expected robust standard deviations >= 0 (0: off), got {self.fast.plane_refit_mad}")
         if not self.fast.explain_lead_voxels >= 0:
             raise SettingsError("fast.explain_lead_voxels",
                                 f"expected voxels >= 0 (0: off), got {self.fast.explain_lead_voxels}")

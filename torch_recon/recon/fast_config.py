@@ -217,6 +217,11 @@ class FastConfig:
     plane_min_support: float = 0.03   # a plane needs this fraction of the visible points (RANSAC inliers)
     plane_tolerance_voxels: float = 0.5  # RANSAC inlier distance; a bounding plane has no point or spot
                                          # more than twice this behind it
+    plane_refit_mad: float = 3.0      # each bounding plane fitted again to its inliers within this many robust standard
+                                      # deviations of their own scatter (0: RANSAC's fit to all inliers within the
+                                      # tolerance). The floor's grazing far rows and junctions (a few mm short)
+                                      # tilted it: continued to the sensor it lay 4.8 mm low, dark-room's out-of-view
+                                      # floor > 5 mm off; refitted 0.8 mm (session 19, docs/reconstruction.md)
     plane_free_band_voxels: float = 2.0  # the mesh keeps faces facing completed empty space this close
                                          # to a completed plane
     # --- surface placement of the mesh (recon/models.py surface_volume) ---
@@ -304,6 +309,13 @@ class FastConfig:
     mesh_unplaced_max_voxels: float = 1.0  # ... the largest move, voxels (in (0, 2])
     mesh_unplaced_silhouettes: bool = True  # ... and vertices beside camera-free voxels (silhouettes) stay too (false:
                                           # organic-occluded hidden R 0.781 -> 0.777, the occluder's silhouette face)
+    mesh_plane_snap_voxels: float = 1.0  # > 0: mesh vertices no camera ray places (recon/hull_planes.py) within this
+                                          # many voxels of a plane bounding the observation, their normal within 20
+                                          # degrees of its, go onto it: the floor behind dark-room's box lay in furrows
+                                          # 1-2 cm deep (lit segments grazing whole voxels). dark-room room > 5 mm off
+                                          # 3.79 -> 3.42 % (the occluded floor 0.45 -> 0.19), objects within 0.001.
+                                          # Runs in mesh_hull_shrink_voxels' export step (inactive where that is 0;
+                                          # session 19, docs/reconstruction.md "Bumps on a dark room's walls"); 0: off
     mesh_hull_flat_patch_faces: int = 15  # ... the patch size (coplanar faces of hull voxels towards carved space)
     mesh_hull_shrink_graze_samples: int = 4  # ... except hull voxels a shadowed segment grazes (crosses at most this
                                           # many marching samples of the hull: the shadow's edge); 0: none excepted

@@ -74,8 +74,7 @@ def unplaced_taubin(mesh, placed: np.ndarray, camera_free: np.ndarray, lo, spaci
         return tuple(nearest_grid_point(p, lo, spacing, shape).T)
 
     v0 = np.asarray(mesh.vertices, np.float64).copy()
-    n = np.asarray(mesh.vertex_normals, np.float64)
-    pinned = placed[cell(v0 - 0.5 * spacing * n)] | placed[cell(v0 + 0.5 * spacing * n)]
+    pinned = placed_vertices(mesh, placed, lo, spacing)
     if pinned.all():
         return mesh
     lap = trimesh.smoothing.laplacian_calculation(mesh, pinned_vertices=np.nonzero(pinned)[0])
@@ -91,3 +90,14 @@ def unplaced_taubin(mesh, placed: np.ndarray, camera_free: np.ndarray, lo, spaci
     mesh.vertices = v
     return mesh
 
+
+def placed_vertices(mesh, placed: np.ndarray, lo, spacing) -> np.ndarray:
+    """bool (V,): `mesh`'s vertices whose grid point half a step inside or outside along the normal is `placed`."""
+    from ..mesh_export import nearest_grid_point
+
+    lo, spacing = np.asarray(lo, np.float64), np.asarray(spacing, np.float64)
+    v = np.asarray(mesh.vertices, np.float64)
+    n = np.asarray(mesh.vertex_normals, np.float64)
+    shape = np.array(placed.shape)
+    return (placed[tuple(nearest_grid_point(v - 0.5 * spacing * n, lo, spacing, shape).T)]
+            | placed[tuple(nearest_grid_point(v + 0.5 * spacing * n, lo, spacing, shape).T)])

@@ -132,7 +132,8 @@ def room_planes(data: RayData, box: GridBox, cfg, surface, in_view_known: bool =
             or cfg.surface_concave_corners == "planes"):
         return []
     return bounding_planes(*surface, data.sensor_origin.cpu().numpy(), data.spot_points.cpu().numpy(),
-                           cfg.plane_tolerance_voxels * box.voxel, cfg.plane_min_support)
+                           cfg.plane_tolerance_voxels * box.voxel, cfg.plane_min_support,
+                           refit_mad=cfg.plane_refit_mad)
 
 
 def objects_measured_points(box: GridBox, cfg, surface, planes: list):

@@ -374,6 +374,9 @@ class FastModel(ReconstructionModel):
             from .hull_unplaced import set_unplaced_smoothing
             set_unplaced_smoothing(self, out, self.fc.mesh_unplaced_taubin_iterations, self.fc.mesh_unplaced_max_voxels,
                                    self.fc.mesh_unplaced_silhouettes)
+        if self.fc.mesh_plane_snap_voxels > 0:      # hull_planes.py
+            from .hull_planes import set_plane_snap
+            set_plane_snap(self, out, self.fc.mesh_plane_snap_voxels)
         return out
 
     def params_finite(self) -> bool:

@@ -77,3 +77,30 @@ def test_floor_outside_the_view_is_completed_and_known_free_space_stays_empty():
     known = torch.as_tensor(free_off)
     assert known.sum() > 100
     assert bool((raw[known] == raw_off[known]).all())
+
+
+def test_a_floor_whose_far_rows_read_short_is_continued_level():
+    """Session 19: the far, grazing rows of a floor and its junction with the back wall read a few mm short (up);
+    RANSAC's least squares over every inlier tilted the plane, and continued to below the sensor it lay 5 mm low.
+    The default refit (`fast.plane_refit_mad`) fits the points within their own scatter: level to 0.5 mm."""
+    from torch_recon.recon.config import FitConfig, SettingsError
+    from torch_recon.recon.fast_config import FastConfig
+
+    rng = np.random.default_rng(0)
+    pts, nrm = _plane_points(rng, 6000, np.array([-2, 2, 0.0]), np.array([4, 0, 0.0]), np.array([0, 2, 0.0]),
+                             [0, 0, 1.0])                                     # floor z = 0 seen from y = 2 to 4
+    pts[:, 2] += rng.normal(0.0, 2e-4, len(pts))                              # the measured points' scatter
+    far = pts[:, 1] > 3.7                                                     # 15 % of the points
+    pts[far, 2] += 0.003 + 0.017 * (pts[far, 1] - 3.7)                        # far rows up by 3 to 8 mm
+    sensor = np.array([0.0, 0.0, 2.0])
+
+    def floor_height_below_sensor(refit_mad):
+        planes = bounding_planes(pts, nrm, sensor, np.array([[0.0, 3.0, 0.0]]), tolerance_m=0.016, seed=0,
+                                 refit_mad=refit_mad)
+        assert len(planes) == 1
+        return planes[0].offset / planes[0].normal[2]                          # z at x = y = 0
+
+    assert abs(floor_height_below_sensor(0.0)) > 0.002                        # RANSAC's fit: tilted
+    assert abs(floor_height_below_sensor(FastConfig().plane_refit_mad)) < 5e-4
+    with pytest.raises(SettingsError, match="fast.plane_refit_mad"):
+        FitConfig.from_dict({"fast": {"plane_refit_mad": -1.0}})

@@ -1,0 +1,61 @@
+"""The hidden hull's faces on a plane bounding the observation go onto that plane (session 19, issue 11).
+
+dark-room's floor behind its box is seen by no camera ray: the shadow hull's boundary puts it, carved by lit segments
+that graze whole voxels (docs/reconstruction.md "Grazing lit segments"), so it lies in diagonal furrows 1-2 cm below
+the floor the sensor measured in front of the box (and training deepened them). Outside the view the planes that bound
+the observation continue (`unobserved.py`); behind an object inside the view the same prior says where such a plane
+lies: a mesh vertex no camera ray places (`hull_unplaced.camera_placed`), within `max_m` of a bounding plane and with
+its normal within 20 degrees of the plane's, goes onto it along the plane's normal. A table top or a seat is no
+bounding plane (the floor lies behind it), and an object's face meets a plane at an angle, so only the room's own
+surfaces move.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .unobserved import _PlaneModel
+
+#: a vertex's normal within this cosine of a plane's normal faces the way the plane does (the RANSAC inlier test)
+NORMAL_COS = _PlaneModel.max_angle_cos
+#: passes: a furrow's side faces the plane only once its floor is on it (their normals are computed again each pass)
+PASSES = 3
+
+
+def set_plane_snap(model, inward, max_voxels: float) -> None:
+    """Fill mesh_export `InwardSmoothing`'s plane fields from the fast model's bounding planes (`init.room_planes`)."""
+    from .hull_unplaced import camera_placed
+    from .init import room_planes
+
+    box = model.grid.box
+    planes = room_planes(model.data, box, model.fc, model.visible_surface(box))
+    if max_voxels <= 0 or not planes:
+        return
+    if tuple(model._start_raw.shape) != tuple(box.shape):
+        raise ValueError("the start field's grid differs from the mesh field's: cannot tell placed vertices")
+    inward.plane_normals = np.stack([p.normal for p in planes]).astype(np.float64)
+    inward.plane_offsets = np.array([p.offset for p in planes], np.float64)
+    inward.plane_snap_m = float(max_voxels) * float(box.voxel)
+    if inward.placed is None:
+        inward.placed = camera_placed(model)
+
+
+def snap_to_planes(mesh, placed: np.ndarray, lo, spacing, normals: np.ndarray, offsets: np.ndarray, max_m: float):
+    """In place: `mesh`'s vertices no `placed` voxel pins (`hull_unplaced.placed_vertices`) within `max_m` of a
+    plane (n . x = offset, unit `normals` (P, 3) facing free space), their normal within 20 degrees of n, go onto it."""
+    from .hull_unplaced import placed_vertices
+
+    if len(mesh.faces) == 0 or len(offsets) == 0:
+        return mesh
+    free = ~placed_vertices(mesh, placed, lo, spacing)
+    for _ in range(PASSES):
+        v = np.asarray(mesh.vertices, np.float64).copy()
+        vn = np.asarray(mesh.vertex_normals, np.float64)
+        for n, off in zip(np.asarray(normals, np.float64), np.asarray(offsets, np.float64)):
+            d = v @ n - off
+            on = free & (np.abs(d) <= max_m) & (vn @ n >= NORMAL_COS)
+            v[on] -= d[on, None] * n
+        if not np.all(np.isfinite(v)):
+            raise ValueError("moving the hull's vertices onto the bounding planes gave non-finite positions")
+        mesh.vertices = v
+    return mesh
