@@ -1,6 +1,7 @@
 """Occupancy/density volume -> mesh file that Blender imports in place, plus a sidecar JSON.
 
-Pipeline: marching cubes (scikit-image) -> (optional) keep only faces facing measured free space ->
+Pipeline: marching cubes (scikit-image; small empty patches of the volume's outer layer sealed, `mesh_gaps`) ->
+(optional) keep only faces facing measured free space, and the pin-holes kept faces enclose (`mesh_gaps`) ->
 (optional) Taubin smoothing, pin-holes' rims pinned -> drop small islands -> drop zero-area faces, merge vertices (trimesh) ->
 UV unwrap (xatlas, `mesh_uv.py`) -> .ply / .obj / .glb.
 
@@ -32,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from .contract.errors import PlatolidarError
+from .mesh_gaps import sealed_shell, small_gaps
 
 #: Blender world (Z-up) -> Y-up file coordinates (glTF / OBJ default import): (x, y, z) -> (x, z, -y)
 YUP_FROM_BLENDER = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
@@ -120,7 +122,7 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
         v = with_occupancy(v, *inward.occupancy, inward.movable)
     origin = lo
     if close_boundary:   # a surface touching the box is closed instead of left open
-        v = np.pad(v, 1, mode="constant", constant_values=min(float(v.min()), level - 1.0))
+        v = np.pad(sealed_shell(v, level), 1, mode="constant", constant_values=min(float(v.min()), level - 1.0))
         origin = lo - spacing
     verts, faces, _, _ = marching_cubes(v, level=level, spacing=tuple(spacing), allow_degenerate=False)
     # scikit-image winds its triangles so that their normals point into the larger values (the
@@ -270,6 +272,7 @@ def _faces_facing_free(mesh, free, lo, spacing, shape, free_points=None):
             keep |= inside & free[gi[:, 0], gi[:, 1], gi[:, 2]]
         if free_points is not None and inside.any():
             keep[inside] |= np.asarray(free_points(q[inside], 0.5 * float(np.min(spacing))), bool)
+    keep |= small_gaps(mesh, keep, PIN_GAP_EDGES)
     mesh.update_faces(keep)
     mesh.remove_unreferenced_vertices()
     return mesh

@@ -148,6 +148,7 @@ def test_smoothing_does_not_widen_pin_holes():
     """A few faces of a wall left out (no free evidence in front of them): Taubin smoothing keeps the
     rim of the gap in place (smoothed, the rim pulled back and the pin-hole grew)."""
     import torch_recon.mesh_export as me
+    import torch_recon.mesh_gaps as gaps
 
     g = np.linspace(-1, 1, 21)
     x, y, z = np.meshgrid(g, g, g, indexing="ij")
@@ -159,15 +160,72 @@ def test_smoothing_does_not_widen_pin_holes():
         near = np.all(np.abs(m.triangles_center[:, 1:]) < 0.5, 1)
         return float(m.area_faces[near].sum())
 
-    raw = area(smooth_iterations=0)
-    assert raw < 1.0 - 1e-3                                           # the gap is there
-    assert area(smooth_iterations=10) >= raw - 1e-9                   # and no larger after smoothing
+    closing = gaps.GAP_MIN_COS, gaps.GAP_ANY_FACES
     pin = me.PIN_GAP_EDGES
     try:
+        gaps.GAP_MIN_COS, gaps.GAP_ANY_FACES = 2.0, 0                     # the gap left open (a crevice's kind)
+        raw = area(smooth_iterations=0)
+        assert raw < 1.0 - 1e-3                                       # the gap is there
+        assert area(smooth_iterations=10) >= raw - 1e-9               # and no larger after smoothing
         me.PIN_GAP_EDGES = 0
         assert area(smooth_iterations=10) < raw - 1e-3                # unpinned, its rim pulls back
     finally:
         me.PIN_GAP_EDGES = pin
+        gaps.GAP_MIN_COS, gaps.GAP_ANY_FACES = closing
+
+
+def _boundary_loops(mesh) -> list:
+    """Edge counts of the mesh's boundary loops (edges used by one face, joined where they share a vertex)."""
+    import trimesh
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    mesh.merge_vertices()
+    edges = mesh.edges_sorted[trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)]
+    if len(edges) == 0:
+        return []
+    n = len(mesh.vertices)
+    _, label = connected_components(coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n)))
+    return np.bincount(label[edges[:, 0]]).tolist()
+
+
+def test_a_pin_hole_in_a_measured_wall_is_closed():
+    """One grid column in front of a wall without free evidence (probes between the sensor's rays): the faces
+    that column drops are enclosed by kept faces, so they are kept; the wall is whole, with no small boundary
+    loop, and nothing behind the wall comes back (its only loop is its outer rim)."""
+    from torch_recon.mesh_export import mesh_from_volume
+
+    g = np.linspace(-1, 1, 21)
+    x, y, z = np.meshgrid(g, g, g, indexing="ij")
+    slab = (x > 0.25).astype(np.float32)
+    free = (x < 0.2) & ~((np.abs(y) < 0.05) & (np.abs(z) < 0.05))
+    mesh, _ = mesh_from_volume(slab, [-1, -1, -1], [1, 1, 1], 0.5, free_space=free, smooth_iterations=10)
+    near = np.all(np.abs(mesh.triangles_center[:, 1:]) < 0.5, 1)
+    assert abs(float(mesh.area_faces[near].sum()) - 1.0) < 1e-4                 # whole (the old code: < 0.99)
+    assert np.allclose(mesh.vertices[:, 0], 0.25, atol=1e-4) and (mesh.face_normals[:, 0] < -0.99).all()
+    loops = _boundary_loops(mesh)
+    assert len(loops) == 1 and loops[0] > 40
+
+
+def test_a_wall_carved_through_to_the_box_face_is_sealed():
+    """A wall one grid step from the box's face with a column carved through it (free, as the room's edges where
+    the view's corner rays meet them): the empty padding outside the box left a hole through the wall; the
+    small empty patch of the outer layer is sealed, so the mesh closes it just behind the wall's face."""
+    from torch_recon.mesh_export import mesh_from_volume
+
+    g = np.linspace(-1, 1, 21)
+    x, y, z = np.meshgrid(g, g, g, indexing="ij")
+    column = (np.abs(y) < 0.05) & (np.abs(z) < 0.05)
+    wall = ((x > 0.85) & ~column).astype(np.float32)       # grid points x = 0.9 and 1.0 (the box face)
+    free = (x < 0.8) | column
+    mesh, _ = mesh_from_volume(wall, [-1, -1, -1], [1, 1, 1], 0.5, free_space=free, smooth_iterations=10)
+    loops = _boundary_loops(mesh)
+    assert len(loops) == 1 and loops[0] > 40                   # the wall's outer rim only
+    assert int((mesh.area_faces < 1e-12).sum()) == 0
+    assert mesh.vertices[:, 0].min() > 0.85 - 0.01                             # nothing in front of the wall
+    # a large empty patch of the outer layer (the box cutting through free space) is not sealed
+    open_side, _ = mesh_from_volume(wall, [-1, -1, -1], [1, 1, 1], 0.5, free_space=free | (x > 0.95))
+    assert not (np.abs(open_side.vertices[:, 0] - 1.0) < 1e-6).all()
 
 
 def test_islands_at_measured_thin_parts_survive_the_cleanup():
