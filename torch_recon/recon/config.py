@@ -135,6 +135,9 @@ class FitConfig:
         if not (math.isfinite(scale) and scale >= 0):
             raise SettingsError("fast.explain_measured_scale_voxels",
                                 f"expected voxels >= 0 (0: off), got {self.fast.explain_measured_scale_voxels}")
+        if not (math.isfinite(self.fast.freeze_plane_edges_voxels) and 0 <= self.fast.freeze_plane_edges_voxels <= 8):
+            raise SettingsError("fast.freeze_plane_edges_voxels",
+                                f"expected voxels in [0, 8] (0: off), got {self.fast.freeze_plane_edges_voxels}")
         if not (math.isfinite(self.fast.freeze_spot_radius_voxels) and self.fast.freeze_spot_radius_voxels >= 0):
             raise SettingsError("fast.freeze_spot_radius_voxels",
                                 f"expected voxels >= 0 (0: off), got {self.fast.freeze_spot_radius_voxels}")

@@ -191,6 +191,10 @@ class FastConfig:
                                       # training dented the wall 1-1.5 cm at every spot (session 18, "Dents at the
                                       # laser spots": 2-3 leave a ring at the rim; 4 the start's flatness, six
                                       # scenes' objects within 0.001); 0: off
+    freeze_plane_edges_voxels: float = 2.0  # > 0: voxels within this many voxels of two bounding planes (a room's
+                                      # concave edge) and of a measured point keep their start value: with exact
+                                      # ranges at the edge (`preprocess.return_centroid_fraction`) training specked
+                                      # the 3 cm grid's rounded edge 5-10 mm (session 19); 0: off
     thin_part_half_width_voxels: float = 0.0  # > 0: those voxels start this far inside the surface (a part thinner
                                       # than a voxel); 0: fully occupied. thin-structures 0.3: start better,
                                       # trained worse (F@2cm table 0.792 -> 0.775; training erodes it)

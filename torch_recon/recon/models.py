@@ -151,9 +151,17 @@ class FastModel(ReconstructionModel):
         measured surface (1-1.5 cm at 3 cm voxels, session 18)."""
         self.spot_surfaces = None
         r = self.fc.freeze_spot_radius_voxels
+        near = torch.zeros(box.shape, dtype=torch.bool)
         if r > 0 and len(self.data.spot_points):
-            near = box.near_points(self.data.spot_points, r * box.voxel).permute(2, 1, 0).reshape(-1)
-            self.spot_surfaces = torch.nonzero(near).reshape(-1).to(self.device)
+            near = box.near_points(self.data.spot_points, r * box.voxel).cpu()
+        if self.fc.freeze_plane_edges_voxels > 0:
+            from .init import room_planes
+            from .unobserved import plane_edge_voxels
+            surface = self.visible_surface(box)
+            planes = room_planes(self.data, box, self.fc, surface)
+            near |= plane_edge_voxels(box, planes, surface[0], self.fc.freeze_plane_edges_voxels * box.voxel)
+        if near.any():
+            self.spot_surfaces = torch.nonzero(near.permute(2, 1, 0).reshape(-1)).reshape(-1).to(self.device)
 
     def _gradient_mask(self, g):
         """The raw-density gradient the optimiser sees: zero on frozen measured voxels (`fast.freeze_measured`),

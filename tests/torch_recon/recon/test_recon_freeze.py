@@ -196,3 +196,48 @@ def test_near_points_is_the_ball_round_each_point():
     got = box.near_points(pts, 0.16)
     d = torch.cdist(box.centres().reshape(-1, 3), pts).min(1).values.reshape(box.shape)
     assert torch.equal(got, d <= 0.16) and int(got.sum()) > 8
+
+
+def test_the_voxels_along_a_rooms_concave_edges_keep_their_start_values(meas):
+    """fast.freeze_plane_edges_voxels: voxels within R voxels of two bounding planes (floor and back wall) and of
+    a measured point keep their start value (training specked the grid's rounded edge); the rest trains."""
+    from torch_recon.recon.init import room_planes
+    from torch_recon.recon.unobserved import plane_edge_voxels
+
+    cfg, start, raw0 = _start(meas, freeze_spot_radius_voxels=0.0, freeze_plane_edges_voxels=2.0)
+    box = start.grid.box
+    surface = start.visible_surface(box)
+    planes = room_planes(start.data, box, cfg.fast, surface)
+    assert len(planes) >= 2
+    edge = plane_edge_voxels(box, planes, surface[0], 2.0 * box.voxel)
+    assert edge.any()
+    frozen = edge.permute(2, 1, 0)[None, None]
+    start.grid.raw.sum().backward()
+    assert torch.equal(start.grid.raw.grad == 0, frozen)      # the hook zeroes exactly those voxels
+    raw = fit(meas, config=cfg).model.grid.raw.detach()
+    assert torch.equal(raw[frozen], raw0[frozen]) and (raw[~frozen] != raw0[~frozen]).sum() > 10
+
+
+def test_plane_edge_voxels_are_near_two_planes_and_a_measured_point():
+    from torch_recon.recon.fields import GridBox
+    from torch_recon.recon.unobserved import Plane, plane_edge_voxels
+
+    box = GridBox([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], 10)
+    floor, wall = Plane(np.array([0.0, 0.0, 1.0]), 0.0, 0.5), Plane(np.array([0.0, -1.0, 0.0]), -1.0, 0.5)
+    parallel = Plane(np.array([0.0, 0.0, -1.0]), -1.0, 0.1)
+    seen = np.array([[0.5, 1.0, 0.0]])          # one point on the floor-wall edge
+    got = plane_edge_voxels(box, [floor, wall, parallel], seen, 0.16)
+    c = box.centres().numpy()
+    expect = ((np.abs(c[..., 2]) <= 0.16) & (np.abs(c[..., 1] - 1.0) <= 0.16)
+              & (np.linalg.norm(c - seen[0], axis=-1) <= 0.16))
+    assert got.any() and np.array_equal(got.numpy(), expect)
+    assert not plane_edge_voxels(box, [floor, parallel], seen, 0.16).any()     # parallel planes make no edge
+
+
+@pytest.mark.parametrize("value", ["-1", "9", "nan"])
+def test_a_bad_plane_edge_radius_is_refused_naming_the_key(value):
+    from torch_recon.contract.errors import SettingsError
+    from torch_recon.recon.config import FitConfig, override
+
+    with pytest.raises(SettingsError, match="fast.freeze_plane_edges_voxels"):
+        override(FitConfig(), [f"fast.freeze_plane_edges_voxels={value}"])
