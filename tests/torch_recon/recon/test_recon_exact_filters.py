@@ -44,6 +44,7 @@ def test_thin_part_gradient_mask_is_masked_fill(training):
     cfg = small_config(steps=1)
     cfg.fast.thin_part_training = training
     cfg.fast.freeze_spot_radius_voxels = 0.0       # this mask alone (test_recon_freeze.py has the spots')
+    cfg.fast.freeze_plane_edges_voxels = 0.0
     model = FastModel(build_ray_data(meas), cfg, _meta(meas))
     gen = torch.Generator().manual_seed(4)
     model.thin_parts = torch.rand(model.grid.raw.shape, generator=gen) > 0.9       # any mask, many voxels

@@ -27,6 +27,7 @@ def frozen_config(steps=20):
     cfg = small_config(steps=steps)
     cfg.fast.freeze_measured = True
     cfg.fast.freeze_spot_radius_voxels = 0.0      # the measured voxels' mask alone
+    cfg.fast.freeze_plane_edges_voxels = 0.0
     return cfg
 
 
@@ -176,7 +177,7 @@ def test_the_voxels_round_a_laser_spot_keep_their_start_values(meas):
     summed gradient dents the spot's own surface; frozen, they keep their start values, and the rest trains."""
     moved = []
     for radius in (0.0, 2.0):
-        cfg, start, raw0 = _start(meas, freeze_spot_radius_voxels=radius)
+        cfg, start, raw0 = _start(meas, freeze_spot_radius_voxels=radius, freeze_plane_edges_voxels=0.0)
         box = start.grid.box
         near = box.near_points(start.data.spot_points, 2.0 * box.voxel).permute(2, 1, 0)[None, None]
         assert near.any() and (start.spot_surfaces is None) == (radius == 0)
