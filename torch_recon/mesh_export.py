@@ -246,9 +246,27 @@ def _small_gap_rims(mesh, max_edges: int) -> np.ndarray:
     return np.unique(edges[small])
 
 
+#: vertices closer than this are one (m): marching cubes puts three vertices within micrometres where the field
+#: crosses the level at a voxel corner, and that sliver's area rounds to zero in the file's float32 coordinates
+MERGE_DISTANCE_M = 1e-5
+
+
 def _without_degenerate(mesh):
-    """Drop zero-area faces (e.g. collapsed by the clamp onto the box) and merge coincident vertices."""
+    """Merge vertices closer than MERGE_DISTANCE_M, drop zero-area faces (e.g. collapsed by the clamp onto the box)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
     mesh.merge_vertices()
+    pairs = cKDTree(np.asarray(mesh.vertices)).query_pairs(MERGE_DISTANCE_M, output_type="ndarray")
+    if len(pairs):
+        n = len(mesh.vertices)
+        _, group = connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n)),
+                                        directed=False)
+        first = np.full(group.max() + 1, n)
+        np.minimum.at(first, group, np.arange(n))          # each group's first vertex stands for it
+        faces = first[group][np.asarray(mesh.faces)]
+        mesh.faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
     mesh.update_faces(mesh.nondegenerate_faces(height=1e-9))
     mesh.remove_unreferenced_vertices()
     return mesh
