@@ -120,7 +120,8 @@ def centroid_offset(win, fraction: float, torch):
     mask = torch.cat([left.flip(1)[:, :w], right], dim=1)
     offs = torch.arange(-w, w + 1, dtype=win.dtype, device=win.device)
     mass = (win * mask).sum(dim=1)
-    return torch.where(mass > 0, (win * mask * offs).sum(dim=1) / mass.clamp_min(1e-30), torch.zeros_like(mass))
+    ok = (mass > 0) & (peak[:, 0] > 0)      # no return left above the background: no offset
+    return torch.where(ok, (win * mask * offs).sum(dim=1) / mass.clamp_min(1e-30), torch.zeros_like(mass))
 
 
 # ---------------------------------------------------------------- first bounce

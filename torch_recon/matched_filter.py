@@ -116,8 +116,9 @@ def matched_filter_spot(tr: Transient, sensor, fb: FirstBounce, settings: Prepro
                 at = kk[:, None] + hw + torch.arange(-cw, cw + 1, device=device)
                 inside = (at >= 0) & (at < xp.shape[1])
                 win = torch.gather(xp, 1, at.clamp(0, xp.shape[1] - 1)) * inside
-                if counting:
-                    win = (win - (bg / gg)[:, None]).clamp_min(0)
+                # the background off every bin (0 where none was estimated): left in, every bin above the
+                # threshold joins the return and pulls its centroid to the window's middle
+                win = (win - (bg / gg)[:, None]).clamp_min(0)
                 off = centroid_offset(win, settings.return_centroid_fraction, torch)
             else:
                 three = torch.gather(xp, 1, kk[:, None] + hw + torch.arange(-1, 2, device=device))

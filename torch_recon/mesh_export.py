@@ -267,6 +267,7 @@ def _without_degenerate(mesh):
         np.minimum.at(first, group, np.arange(n))          # each group's first vertex stands for it
         faces = first[group][np.asarray(mesh.faces)]
         mesh.faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
+        mesh.update_faces(mesh.unique_faces())      # two faces the merge made one
     mesh.update_faces(mesh.nondegenerate_faces(height=1e-9))
     mesh.remove_unreferenced_vertices()
     return mesh

@@ -120,7 +120,7 @@ def cycles_rows(ctx, s: Settings, res: int) -> list[dict]:
             runners.row("bflidar (grid search, reused measurements)", scene, b, source="cycles", resolution=res)]
 
 
-PATH_ESTIMATORS = {"return centroid": {}, "3-bin Gaussian fit": {"return_centroid_fraction": 0.0}}
+PATH_ESTIMATORS = {"return centroid": {"return_centroid_fraction": 0.05}, "3-bin Gaussian fit": {"return_centroid_fraction": 0.0}}
 
 
 def path_rows(ctx, s: Settings, scene: str) -> list[dict]:

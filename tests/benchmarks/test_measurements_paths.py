@@ -42,3 +42,4 @@ def test_each_path_estimator_gives_a_row_with_its_depth_error(tmp_path):
         assert r["spots"] == 2 and r["resolution"] == 16
         assert 0 <= r["visible_depth_median_mm"] <= r["visible_depth_p95_mm"] <= r["visible_depth_p99_mm"] < 50
         assert np.isfinite(r["visible_depth_far_signed_mm"])
+    assert rows[0]["visible_depth_median_mm"] != rows[1]["visible_depth_median_mm"]     # two estimators ran

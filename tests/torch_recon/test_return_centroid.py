@@ -71,3 +71,27 @@ def test_the_centroid_stops_at_a_valley_before_a_second_return():
 
 def test_an_empty_window_has_no_offset():
     assert float(centroid_offset(torch.zeros(1, 2 * CENTROID_HALF_WIDTH + 1), 0.05, torch)[0]) == 0.0
+
+
+def test_the_valley_rule_parts_two_returns_that_overlap():
+    """Two returns 2.6 bins apart (the second at half the first): the bins between them never fall below 5 % of
+    the peak, only the valley (below half of it, rising again) parts them."""
+    values = _return([-1.3, 1.3], [1.0, 0.5])
+    win, shift = _window(values)
+    assert abs(float(centroid_offset(win, 0.05, torch)[0]) + shift - (-1.3)) < 0.1
+
+
+def test_a_background_left_in_pulls_the_centroid_and_the_filter_takes_it_off():
+    """matched_filter subtracts the background from the window before the centroid: with 6 % of the peak left
+    in every bin the centroid of a return 0.3 bin off its maximum bin's centre moved to about 0.18."""
+    values = _return([0.3], [1.0])
+    win, _ = _window(values)
+    with_floor = win + 0.06 * win.max()
+    assert abs(float(centroid_offset(with_floor, 0.05, torch)[0]) - 0.3) > 0.05
+    assert abs(float(centroid_offset((with_floor - 0.06 * win.max()).clamp_min(0), 0.05, torch)[0]) - 0.3) < 0.02
+
+
+def test_no_return_above_the_background_has_no_offset():
+    win = torch.zeros(1, 2 * CENTROID_HALF_WIDTH + 1)
+    win[0, 2] = 3.0                  # a stray count far from an empty maximum bin
+    assert float(centroid_offset(win, 0.05, torch)[0]) == 0.0

@@ -145,10 +145,11 @@ class FastModel(ReconstructionModel):
             self.thin_parts = vox.permute(2, 1, 0)[None, None].to(self.device)
 
     def _set_spot_surfaces(self, box):
-        """`spot_surfaces`: flat raw-layout indices of the voxels within `fast.freeze_spot_radius_voxels` of a laser
-        spot, which training leaves at their start value, or None (off). Every secondary ray of a spot leaves
-        through them: their transmittance gradient, summed over all of the spot's pixels, dents the spot's own
-        measured surface (1-1.5 cm at 3 cm voxels, session 18)."""
+        """`spot_surfaces`: flat raw-layout indices of the voxels training leaves at their start value, or None (off):
+        those within `fast.freeze_spot_radius_voxels` of a laser spot (every secondary ray of a spot leaves through
+        them: their transmittance gradient, summed over all of the spot's pixels, dents the spot's own measured
+        surface, 1-1.5 cm at 3 cm voxels, session 18) and those along the room's concave edges
+        (`fast.freeze_plane_edges_voxels`: training specked the grid's rounded edge, session 19)."""
         self.spot_surfaces = None
         r = self.fc.freeze_spot_radius_voxels
         near = torch.zeros(box.shape, dtype=torch.bool)
@@ -165,7 +166,7 @@ class FastModel(ReconstructionModel):
 
     def _gradient_mask(self, g):
         """The raw-density gradient the optimiser sees: zero on frozen measured voxels (`fast.freeze_measured`),
-        round the laser spots (`fast.freeze_spot_radius_voxels`) and on thin parts (`fast.thin_part_training`: all
+        round the laser spots and along the room's concave edges (`spot_surfaces`) and on thin parts (`fast.thin_part_training`: all
         of it when 'frozen', the part pushing them down when 'grow'); Adam's step follows the sign of its masked
         gradient, so a zeroed direction never moves. The caller's gradient is left alone."""
         caller = g      # copied once, before the first in-place change
