@@ -16,6 +16,7 @@ from __future__ import annotations
 import os
 import resource
 import time
+import traceback
 from dataclasses import dataclass
 
 from benchmarks.harness import Suite
@@ -262,7 +263,11 @@ def run(settings: Settings, ctx) -> list[dict]:
     ctx.log(f"  {len(score.cams)} test views of {score.views.width} x {score.views.height}, device {device}")
     rows, best = [], {}
     for mode in settings.methods:
-        curve, r = _fit_curve(ctx, ds, mode, settings, score)
+        try:
+            curve, r = _fit_curve(ctx, ds, mode, settings, score)
+        except Exception as exc:        # one device call is all a GPU run gets: the other method still runs
+            ctx.log(f"  {mode} FAILED on {device}: {type(exc).__name__}: {exc}\n" + traceback.format_exc()[-2000:])
+            continue
         if mode == "platonerf" and settings.platonerf_timing_steps > 0:
             for phase in ("warmup", "shadow"):
                 t = _phase_timing(ctx, ds, settings, phase)

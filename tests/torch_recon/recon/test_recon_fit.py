@@ -172,3 +172,15 @@ def test_fast_mesh_is_clean_planar_and_has_the_hidden_face(meas, tmp_path):
     assert back.sum() > 3
     assert np.abs(np.median(v[back, 1]) - BOX_BACK_Y) < voxel, np.median(v[back, 1])
     assert BOX_HI[2] > 0   # (fixture sanity)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_fast_mode_on_cuda_recovers_the_hidden_back_face_as_on_the_cpu(meas):
+    # the fast mode's CUDA path (start field, carving, training) on the device; CPU and GPU kernels round
+    # differently, so the two fields agree to the voxel, not bit for bit
+    cpu = fit(meas, config=small_config(steps=30))
+    gpu = fit(meas, config=small_config(steps=30, device="cuda"))
+    assert gpu.metadata.get("device", "").startswith("cuda") and np.isfinite(gpu.volume).all()
+    assert abs(back_face_y(gpu) - BOX_BACK_Y) < BACK_FACE_TOL_M
+    assert abs(back_face_y(gpu) - back_face_y(cpu)) < 0.5 * (gpu.bbox_max[1] - gpu.bbox_min[1]) / gpu.volume.shape[1]
+    assert np.mean((gpu.volume > 0.5) != (cpu.volume > 0.5)) < 0.01
