@@ -27,7 +27,7 @@ class GridBox:
         self.voxel = float(ext.max()) / int(resolution)
         self.shape = tuple(max(1, int(math.ceil(float(e) / self.voxel - 1e-6))) for e in ext)  # (nx, ny, nz)
         self.bbox_min = lo
-        self.bbox_max = lo + torch.tensor(self.shape, dtype=torch.float32) * self.voxel
+        self.bbox_max = lo + torch.tensor(self.shape, dtype=torch.float32, device=lo.device) * self.voxel
 
     @classmethod
     def exact(cls, bbox_min, voxel: float, shape) -> "GridBox":
@@ -36,7 +36,7 @@ class GridBox:
         b.voxel = float(voxel)
         b.shape = tuple(int(n) for n in shape)
         b.bbox_min = torch.as_tensor(bbox_min, dtype=torch.float32)
-        b.bbox_max = b.bbox_min + torch.tensor(b.shape, dtype=torch.float32) * b.voxel
+        b.bbox_max = b.bbox_min + torch.tensor(b.shape, dtype=torch.float32, device=b.bbox_min.device) * b.voxel
         return b
 
     def to(self, device):

@@ -175,12 +175,23 @@ def test_fast_mesh_is_clean_planar_and_has_the_hidden_face(meas, tmp_path):
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
-def test_fast_mode_on_cuda_recovers_the_hidden_back_face_as_on_the_cpu(meas):
-    # the fast mode's CUDA path (start field, carving, training) on the device; CPU and GPU kernels round
-    # differently, so the two fields agree to the voxel, not bit for bit
+def test_fast_mode_on_cuda_recovers_the_hidden_back_face_as_on_the_cpu(meas, tmp_path):
+    # the fast mode's CUDA path (start field, carving, training, the mesh export: session 20's device run
+    # found the export's boxes mixing devices) on the device; CPU and GPU kernels round differently, so the
+    # two fields agree to the voxel, not bit for bit
     cpu = fit(meas, config=small_config(steps=30))
-    gpu = fit(meas, config=small_config(steps=30, device="cuda"))
+    gpu = fit(meas, out=tmp_path, config=small_config(steps=30, device="cuda"), uv=False)
+    assert (tmp_path / "mesh.ply").stat().st_size > 0
     assert gpu.metadata.get("device", "").startswith("cuda") and np.isfinite(gpu.volume).all()
     assert abs(back_face_y(gpu) - BOX_BACK_Y) < BACK_FACE_TOL_M
     assert abs(back_face_y(gpu) - back_face_y(cpu)) < 0.5 * (gpu.bbox_max[1] - gpu.bbox_min[1]) / gpu.volume.shape[1]
     assert np.mean((gpu.volume > 0.5) != (cpu.volume > 0.5)) < 0.01
+
+
+def test_grid_boxes_stay_on_their_corners_device():
+    # a box rebuilt from a corner on the GPU put its far corner's sum on the CPU: `fit --device cuda` failed at
+    # the export (session 20, H200). PyTorch's meta device refuses the same mix without a GPU.
+    from torch_recon.recon.fields import GridBox
+
+    corner = torch.zeros(3, device="meta")
+    assert GridBox.exact(corner, 0.1, [2, 3, 4]).bbox_max.device.type == "meta"
