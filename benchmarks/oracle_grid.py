@@ -205,10 +205,11 @@ def export_oracle(sd, box, fit_config, out_path, smooth_iterations=None, min_isl
     lo, hi = box.bbox_min.cpu().numpy(), box.bbox_max.cpu().numpy()
     smooth = fit_config.mesh_smooth_iterations if smooth_iterations is None else smooth_iterations
     meta = metadata or {"method": "oracle"}
-    if min_island_fraction is None:
+    if min_island_fraction is None:     # the fast field's export, its hole mending too
         return export_volume(vol, lo, hi, level, out_path, meta, uv=False, free_space=sd < 0,
-                             smooth_iterations=smooth)
+                             smooth_iterations=smooth, mend_gaps=True)
     # as export_volume, with the island cleanup changed (the exporter's grid points are the voxel centres)
     res = export_mesh(vol, *voxel_centre_box(vol, lo, hi), level, out_path.with_suffix(".ply"), meta, uv=False,
-                      free_space=sd < 0, smooth_iterations=smooth, min_island_fraction=min_island_fraction)
+                      free_space=sd < 0, smooth_iterations=smooth, min_island_fraction=min_island_fraction,
+                      mend_gaps=True)
     return {p.suffix.lstrip("."): p for p in res.paths}, res.mesh

@@ -1,9 +1,10 @@
 """Occupancy/density volume -> mesh file that Blender imports in place, plus a sidecar JSON.
 
-Pipeline: marching cubes (scikit-image; small empty patches of the volume's outer layer sealed, `mesh_gaps`) ->
-(optional) keep only faces facing measured free space, and the pin-holes kept faces enclose (`mesh_gaps`) ->
-(optional) Taubin smoothing, pin-holes' rims pinned -> drop small islands -> drop zero-area faces, merge vertices (trimesh) ->
-UV unwrap (xatlas, `mesh_uv.py`) -> .ply / .obj / .glb.
+Pipeline: marching cubes (scikit-image; with `mend_gaps`, the fast mode's, small empty patches of the volume's outer
+layer sealed, `mesh_gaps`) -> (optional) keep only faces facing measured free space (with `mend_gaps`, and the
+pin-holes kept faces enclose, `mesh_gaps`) -> (optional) Taubin smoothing, pin-holes' rims pinned -> drop small
+islands, merge micrometre-close vertices, drop zero-area faces (`mesh_clean`) -> UV unwrap (xatlas, `mesh_uv.py`) ->
+.ply / .obj / .glb.
 
 Volume convention: `volume[i, j, k]` is the value at the grid point
 bbox_min + (i, j, k) * (bbox_max - bbox_min) / (shape - 1), world (Blender, Z-up)
@@ -33,7 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from .contract.errors import PlatolidarError
-from .mesh_gaps import sealed_shell, small_gaps
+from . import mesh_gaps
+from .mesh_clean import drop_small_islands, without_degenerate
 
 #: Blender world (Z-up) -> Y-up file coordinates (glTF / OBJ default import): (x, y, z) -> (x, z, -y)
 YUP_FROM_BLENDER = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
@@ -88,7 +90,7 @@ class InwardSmoothing:
 
 def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: bool = True,
                      min_island_fraction: float = 0.01, free_space=None, smooth_iterations: int = 0,
-                     free_points=None, keep_near=None, inward=None):
+                     free_points=None, keep_near=None, inward=None, mend_gaps: bool = False):
     """Marching cubes + small-island removal -> (trimesh.Trimesh in world frame, islands removed).
 
     free_space: optional bool volume on the same grid points, True where the measurements say the
@@ -97,13 +99,15 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
     `free_points(points (N, 3), margin_m) -> bool (N,)` of the same kind for any point (e.g. the sensor's
     pixel footprints, between voxel centres); a face is kept when either says its outward side is free.
     smooth_iterations: Taubin (lambda | mu) smoothing of the kept faces, which removes marching-cubes
-    terracing without shrinking the volume; the rims of pin-holes (`PIN_GAP_EDGES`) stay in place.
+    terracing without shrinking the volume; the rims of pin-holes (`mesh_gaps.PIN_GAP_EDGES`) stay in place.
     keep_near: optional (points (N, 3), radius_m): a small island with a vertex within radius of one of these
     points is kept (measured thin parts: a one-voxel pole stepping diagonally between voxels falls apart into
     pieces below the island size, which are not specks).
     inward: optional `InwardSmoothing`: its occupancy goes into the field first; after the Taubin passes, the
     vertices whose voxel half a grid step inside is movable are smoothed further, only inward (`inward_smoothing`).
-    Faces of zero area are removed and coincident vertices merged in every case."""
+    mend_gaps: the fast mode's hole mending (`mesh_gaps`): small empty patches of the box's outer layer sealed, and
+    the free-space filter's pin-holes kept; off, marching cubes as it is (BF Lidar, PlatoNeRF, evaluate).
+    Faces of zero area are removed and coincident vertices merged in every case (`mesh_clean`)."""
     import trimesh
     from skimage.measure import marching_cubes
 
@@ -122,7 +126,8 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
         v = with_occupancy(v, *inward.occupancy, inward.movable)
     origin = lo
     if close_boundary:   # a surface touching the box is closed instead of left open
-        v = np.pad(sealed_shell(v, level), 1, mode="constant", constant_values=min(float(v.min()), level - 1.0))
+        shell = mesh_gaps.sealed_shell(v, level) if mend_gaps else v
+        v = np.pad(shell, 1, mode="constant", constant_values=min(float(v.min()), level - 1.0))
         origin = lo - spacing
     verts, faces, _, _ = marching_cubes(v, level=level, spacing=tuple(spacing), allow_degenerate=False)
     # scikit-image winds its triangles so that their normals point into the larger values (the
@@ -130,11 +135,12 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
     mesh = trimesh.Trimesh(verts + origin, np.ascontiguousarray(faces[:, ::-1]), process=True)
     if free_space is not None or free_points is not None:
         mesh = _faces_facing_free(mesh, None if free_space is None else np.asarray(free_space, bool), lo, spacing,
-                                  np.array(np.shape(volume)), free_points)
+                                  np.array(np.shape(volume)), free_points, mend_gaps)
     if smooth_iterations > 0 and len(mesh.faces):
         # the rims of small gaps (a few faces left out) stay where marching cubes put them: smoothed, they
         # pulled back and pin-holes grew into visible holes; long rims (the edge of the view) are smoothed
-        lap = trimesh.smoothing.laplacian_calculation(mesh, pinned_vertices=_small_gap_rims(mesh, PIN_GAP_EDGES))
+        pins = mesh_gaps.small_gap_rims(mesh, mesh_gaps.PIN_GAP_EDGES)
+        lap = trimesh.smoothing.laplacian_calculation(mesh, pinned_vertices=pins)
         trimesh.smoothing.filter_taubin(mesh, lamb=0.5, nu=0.53, iterations=int(smooth_iterations),
                                         laplacian_operator=lap)
     if inward is not None and len(mesh.faces):
@@ -156,27 +162,10 @@ def mesh_from_volume(volume, bbox_min, bbox_max, level: float, close_boundary: b
             from .recon.hull_planes import snap_to_planes
             snap_to_planes(mesh, np.asarray(inward.placed, bool), lo, spacing, inward.plane_normals,
                            inward.plane_offsets, float(inward.plane_snap_m))
-    removed = 0
-    if min_island_fraction > 0 and len(mesh.faces):
-        # islands = faces connected through shared edges (as mesh.split), labelled in one pass: split builds a
-        # Trimesh per island, minutes for the thousands of specks of an early field on a busy machine
-        label = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(mesh.faces))
-        size = np.bincount(label)
-        small = size < min_island_fraction * size.max()
-        if keep_near is not None and len(keep_near[0]) and small.any():
-            from scipy.spatial import cKDTree
-            near = np.isfinite(cKDTree(np.asarray(keep_near[0], np.float64)).query(
-                mesh.vertices, distance_upper_bound=float(keep_near[1]))[0])
-            touched = np.zeros(len(size), bool)
-            touched[label[near[mesh.faces].any(1)]] = True
-            small &= ~touched
-        removed = int(small.sum())
-        if removed:
-            mesh.update_faces(~small[label])
-            mesh.remove_unreferenced_vertices()
+    removed = drop_small_islands(mesh, min_island_fraction, keep_near)
     if close_boundary:   # the padded ring lies just outside the box: clamp it onto the box faces
         mesh.vertices = np.clip(mesh.vertices, lo, hi)
-    return _without_degenerate(mesh), removed
+    return without_degenerate(mesh), removed
 
 
 def nearest_grid_point(points, lo, spacing, shape) -> np.ndarray:
@@ -225,58 +214,10 @@ def inward_smoothing(mesh, movable, max_move: float, iterations: int, lamb: floa
     return mesh
 
 
-#: a gap in the kept surface whose rim has at most this many edges is a pin-hole (its rim is not smoothed)
-PIN_GAP_EDGES = 48
-
-
-def _small_gap_rims(mesh, max_edges: int) -> np.ndarray:
-    """Vertices on boundary loops of at most `max_edges` edges (the rims of pin-holes)."""
-    import trimesh
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    edges = mesh.edges_sorted[trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)]
-    if len(edges) == 0:
-        return np.zeros(0, np.int64)
-    n = len(mesh.vertices)
-    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
-    _, label = connected_components(graph, directed=False)
-    loop = label[edges[:, 0]]
-    small = np.bincount(loop, minlength=label.max() + 1)[loop] <= max_edges
-    return np.unique(edges[small])
-
-
-#: vertices closer than this are one (m): marching cubes puts three vertices within micrometres where the field
-#: crosses the level at a voxel corner, and that sliver's area rounds to zero in the file's float32 coordinates
-MERGE_DISTANCE_M = 1e-5
-
-
-def _without_degenerate(mesh):
-    """Merge vertices closer than MERGE_DISTANCE_M, drop zero-area faces (e.g. collapsed by the clamp onto the box)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
-    mesh.merge_vertices()
-    pairs = cKDTree(np.asarray(mesh.vertices)).query_pairs(MERGE_DISTANCE_M, output_type="ndarray")
-    if len(pairs):
-        n = len(mesh.vertices)
-        _, group = connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n)),
-                                        directed=False)
-        first = np.full(group.max() + 1, n)
-        np.minimum.at(first, group, np.arange(n))          # each group's first vertex stands for it
-        faces = first[group][np.asarray(mesh.faces)]
-        mesh.faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
-        mesh.update_faces(mesh.unique_faces())      # two faces the merge made one
-    mesh.update_faces(mesh.nondegenerate_faces(height=1e-9))
-    mesh.remove_unreferenced_vertices()
-    return mesh
-
-
-def _faces_facing_free(mesh, free, lo, spacing, shape, free_points=None):
+def _faces_facing_free(mesh, free, lo, spacing, shape, free_points=None, mend_gaps=False):
     """Keep the faces whose outward side (0.5 to 1.5 grid steps along the normal) is known free space: the
     nearest grid point (of a grid of `shape` points) is in `free`, or `free_points` passes the point itself
-    (half a grid step of margin)."""
+    (half a grid step of margin); with `mend_gaps`, also the pin-holes kept faces enclose (`mesh_gaps.small_gaps`)."""
     if len(mesh.faces) == 0:
         return mesh
     c = mesh.triangles_center
@@ -291,7 +232,8 @@ def _faces_facing_free(mesh, free, lo, spacing, shape, free_points=None):
             keep |= inside & free[gi[:, 0], gi[:, 1], gi[:, 2]]
         if free_points is not None and inside.any():
             keep[inside] |= np.asarray(free_points(q[inside], 0.5 * float(np.min(spacing))), bool)
-    keep |= small_gaps(mesh, keep, PIN_GAP_EDGES)
+    if mend_gaps:
+        keep |= mesh_gaps.small_gaps(mesh, keep, mesh_gaps.PIN_GAP_EDGES)
     mesh.update_faces(keep)
     mesh.remove_unreferenced_vertices()
     return mesh
@@ -348,12 +290,13 @@ def sidecar_path(out_path) -> Path:
 
 def export_mesh(volume, bbox_min, bbox_max, level, out_path, metadata=None, *, extra_formats=(), uv=True,
                 close_boundary=True, min_island_fraction=0.01, max_uv_faces=1_000_000, free_space=None,
-                smooth_iterations: int = 0, free_points=None, keep_near=None, inward=None) -> ExportResult:
+                smooth_iterations: int = 0, free_points=None, keep_near=None, inward=None,
+                mend_gaps: bool = False) -> ExportResult:
     """Volume -> mesh file(s) in the Blender world frame + `<stem>.mesh.json` with metadata.
 
     metadata: JSON-able dict from the caller (method, settings, run time, dataset hash, ...);
     the sidecar adds level, bbox, grid, counts, frames and timing. extra_formats: more
-    suffixes (e.g. ('.ply', '.obj')) written next to out_path from the same mesh.
+    suffixes (e.g. ('.ply', '.obj')) written next to out_path from the same mesh. The mesh: `mesh_from_volume`.
     """
     t0 = time.perf_counter()
     out_path = Path(out_path)
@@ -368,7 +311,8 @@ def export_mesh(volume, bbox_min, bbox_max, level, out_path, metadata=None, *, e
         raise MeshExportError(f"metadata must be JSON-serialisable: {exc}") from None
     mesh, removed = mesh_from_volume(volume, bbox_min, bbox_max, level, close_boundary, min_island_fraction,
                                      free_space=free_space, smooth_iterations=smooth_iterations,
-                                     free_points=free_points, keep_near=keep_near, inward=inward)
+                                     free_points=free_points, keep_near=keep_near, inward=inward,
+                                     mend_gaps=mend_gaps)
     uv_done = False
     if uv and len(mesh.faces) <= max_uv_faces:
         from .mesh_uv import uv_unwrap
@@ -393,7 +337,7 @@ def export_mesh(volume, bbox_min, bbox_max, level, out_path, metadata=None, *, e
                        "close_boundary": bool(close_boundary), "min_island_fraction": float(min_island_fraction),
                        "faces_facing_measured_free_space_only": free_space is not None or free_points is not None,
                        "free_space_point_test": free_points is not None,
-                       "taubin_iterations": int(smooth_iterations)},
+                       "taubin_iterations": int(smooth_iterations), "gaps_mended": bool(mend_gaps)},
             "export_seconds": round(seconds, 4),
             "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds")}
     sc = sidecar_path(out_path)

@@ -1,4 +1,9 @@
-"""Holes in the exported mesh that nothing measured explains, closed where their cause is known (session 19).
+"""Holes in the exported mesh that nothing measured explains, closed where their cause is known (session 19), and
+the pin-holes' rims held in place by the smoothing.
+
+The mending (`sealed_shell`, `small_gaps`) is the fast mode's export heuristic: `mesh_export.mesh_from_volume` runs
+it only with `mend_gaps` (the method table's `mends_mesh_gaps`, contract/methods.py), so BF Lidar's mesh, PlatoNeRF's
+and `evaluate`'s density mesh stay plain marching cubes (session 20).
 
 - `small_gaps`: pin-holes left by the free-space face filter (`mesh_export._faces_facing_free`): a few faces whose
   probes fell between the voxels and pixel rays that measured free space, enclosed by kept faces.
@@ -17,6 +22,9 @@ import numpy as np
 #: too but lost hidden R@2cm 0.004 on thin-structures and curved-wall (their rims, no longer pinned, are smoothed)
 GAP_MIN_COS = 0.7
 GAP_ANY_FACES = 0
+#: a gap in the kept surface whose rim has at most this many edges is a pin-hole (closed by `small_gaps`; its rim is
+#: not smoothed, `small_gap_rims`)
+PIN_GAP_EDGES = 48
 #: an empty patch of the volume's outer layer of voxels of at most this many voxels is a hole's mouth (`sealed_shell`)
 SEALED_PATCH_VOXELS = 48
 
@@ -82,3 +90,20 @@ def small_gaps(mesh, keep, max_edges: int) -> np.ndarray:
              & ((turn >= GAP_MIN_COS) | (faces <= GAP_ANY_FACES)))
     gap[dropped] = small[patch[dropped]]
     return gap
+
+
+def small_gap_rims(mesh, max_edges: int) -> np.ndarray:
+    """Vertices on boundary loops of at most `max_edges` edges (the rims of pin-holes)."""
+    import trimesh
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    edges = mesh.edges_sorted[trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)]
+    if len(edges) == 0:
+        return np.zeros(0, np.int64)
+    n = len(mesh.vertices)
+    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    loop = label[edges[:, 0]]
+    small = np.bincount(loop, minlength=label.max() + 1)[loop] <= max_edges
+    return np.unique(edges[small])

@@ -119,6 +119,7 @@ class _Scorer:
 
 def _mesh_of(model):
     """The mesh `fit` would export from the model's current field (no UVs, no files); None for an empty field."""
+    from torch_recon.contract.methods import method
     from torch_recon.mesh_export import MeshExportError, mesh_from_volume
     from torch_recon.recon.api import voxel_centre_box
 
@@ -128,7 +129,8 @@ def _mesh_of(model):
     free = model.free_evidence() if hasattr(model, "free_evidence") else None
     try:
         mesh = mesh_from_volume(vol, *voxel_centre_box(vol, lo, hi), level, free_space=free,
-                                smooth_iterations=cfg.mesh_smooth_iterations)[0]
+                                smooth_iterations=cfg.mesh_smooth_iterations,
+                                mend_gaps=method(cfg.mode).mends_mesh_gaps)[0]
     except MeshExportError:
         return None
     return mesh if len(mesh.faces) else None

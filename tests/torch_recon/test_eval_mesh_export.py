@@ -144,9 +144,9 @@ def test_a_point_test_keeps_faces_the_free_voxels_miss():
     assert len(dropped.faces) == 0
 
 
-def test_smoothing_does_not_widen_pin_holes():
-    """A few faces of a wall left out (no free evidence in front of them): Taubin smoothing keeps the
-    rim of the gap in place (smoothed, the rim pulled back and the pin-hole grew)."""
+def test_smoothing_does_not_widen_pin_holes(monkeypatch):
+    """A few faces of a wall left out (no free evidence in front of them; not mended, as BF Lidar's or PlatoNeRF's
+    export): Taubin smoothing keeps the rim of the gap in place (smoothed, the rim pulled back and the pin-hole grew)."""
     import torch_recon.mesh_export as me
     import torch_recon.mesh_gaps as gaps
 
@@ -160,18 +160,11 @@ def test_smoothing_does_not_widen_pin_holes():
         near = np.all(np.abs(m.triangles_center[:, 1:]) < 0.5, 1)
         return float(m.area_faces[near].sum())
 
-    closing = gaps.GAP_MIN_COS, gaps.GAP_ANY_FACES
-    pin = me.PIN_GAP_EDGES
-    try:
-        gaps.GAP_MIN_COS, gaps.GAP_ANY_FACES = 2.0, 0                     # the gap left open (a crevice's kind)
-        raw = area(smooth_iterations=0)
-        assert raw < 1.0 - 1e-3                                       # the gap is there
-        assert area(smooth_iterations=10) >= raw - 1e-9               # and no larger after smoothing
-        me.PIN_GAP_EDGES = 0
-        assert area(smooth_iterations=10) < raw - 1e-3                # unpinned, its rim pulls back
-    finally:
-        me.PIN_GAP_EDGES = pin
-        gaps.GAP_MIN_COS, gaps.GAP_ANY_FACES = closing
+    raw = area(smooth_iterations=0)
+    assert raw < 1.0 - 1e-3                                       # the gap is there
+    assert area(smooth_iterations=10) >= raw - 1e-9               # and no larger after smoothing
+    monkeypatch.setattr(gaps, "PIN_GAP_EDGES", 0)
+    assert area(smooth_iterations=10) < raw - 1e-3                # unpinned, its rim pulls back
 
 
 def _boundary_loops(mesh) -> list:
@@ -191,26 +184,31 @@ def _boundary_loops(mesh) -> list:
 
 def test_a_pin_hole_in_a_measured_wall_is_closed():
     """One grid column in front of a wall without free evidence (probes between the sensor's rays): the faces
-    that column drops are enclosed by kept faces, so they are kept; the wall is whole, with no small boundary
-    loop, and nothing behind the wall comes back (its only loop is its outer rim)."""
+    that column drops are enclosed by kept faces, so the fast mode's export (`mend_gaps`) keeps them; the wall is
+    whole, with no small boundary loop, and nothing behind the wall comes back (its only loop is its outer rim).
+    Without `mend_gaps` (every other method's export) the pin-hole stays (session 20)."""
     from torch_recon.mesh_export import mesh_from_volume
 
     g = np.linspace(-1, 1, 21)
     x, y, z = np.meshgrid(g, g, g, indexing="ij")
     slab = (x > 0.25).astype(np.float32)
     free = (x < 0.2) & ~((np.abs(y) < 0.05) & (np.abs(z) < 0.05))
-    mesh, _ = mesh_from_volume(slab, [-1, -1, -1], [1, 1, 1], 0.5, free_space=free, smooth_iterations=10)
+    mesh, _ = mesh_from_volume(slab, [-1, -1, -1], [1, 1, 1], 0.5, free_space=free, smooth_iterations=10,
+                               mend_gaps=True)
     near = np.all(np.abs(mesh.triangles_center[:, 1:]) < 0.5, 1)
     assert abs(float(mesh.area_faces[near].sum()) - 1.0) < 1e-4                 # whole (the old code: < 0.99)
     assert np.allclose(mesh.vertices[:, 0], 0.25, atol=1e-4) and (mesh.face_normals[:, 0] < -0.99).all()
     loops = _boundary_loops(mesh)
     assert len(loops) == 1 and loops[0] > 40
+    plain, _ = mesh_from_volume(slab, [-1, -1, -1], [1, 1, 1], 0.5, free_space=free, smooth_iterations=10)
+    assert sorted(_boundary_loops(plain))[0] <= 8                              # the pin-hole's rim
 
 
 def test_a_wall_carved_through_to_the_box_face_is_sealed():
     """A wall one grid step from the box's face with a column carved through it (free, as the room's edges where
     the view's corner rays meet them): the empty padding outside the box left a hole through the wall; the
-    small empty patch of the outer layer is sealed, so the mesh closes it just behind the wall's face."""
+    small empty patch of the outer layer is sealed (the fast mode's `mend_gaps`), so the mesh closes it just behind
+    the wall's face."""
     from torch_recon.mesh_export import mesh_from_volume
 
     g = np.linspace(-1, 1, 21)
@@ -218,13 +216,15 @@ def test_a_wall_carved_through_to_the_box_face_is_sealed():
     column = (np.abs(y) < 0.05) & (np.abs(z) < 0.05)
     wall = ((x > 0.85) & ~column).astype(np.float32)       # grid points x = 0.9 and 1.0 (the box face)
     free = (x < 0.8) | column
-    mesh, _ = mesh_from_volume(wall, [-1, -1, -1], [1, 1, 1], 0.5, free_space=free, smooth_iterations=10)
+    mesh, _ = mesh_from_volume(wall, [-1, -1, -1], [1, 1, 1], 0.5, free_space=free, smooth_iterations=10,
+                               mend_gaps=True)
     loops = _boundary_loops(mesh)
     assert len(loops) == 1 and loops[0] > 40                   # the wall's outer rim only
     assert int((mesh.area_faces < 1e-12).sum()) == 0
     assert mesh.vertices[:, 0].min() > 0.85 - 0.01                             # nothing in front of the wall
     # a large empty patch of the outer layer (the box cutting through free space) is not sealed
-    open_side, _ = mesh_from_volume(wall, [-1, -1, -1], [1, 1, 1], 0.5, free_space=free | (x > 0.95))
+    open_side, _ = mesh_from_volume(wall, [-1, -1, -1], [1, 1, 1], 0.5, free_space=free | (x > 0.95),
+                                    mend_gaps=True)
     assert not (np.abs(open_side.vertices[:, 0] - 1.0) < 1e-6).all()
 
 
@@ -265,3 +265,27 @@ def test_micrometre_slivers_are_merged_and_the_mesh_stays_closed(inside):
     mesh, _ = mesh_from_volume(v, [0, 0, 0], [1, 1, 1], 0.0)
     as_written = trimesh.Trimesh(np.asarray(mesh.vertices, np.float32).astype(np.float64), mesh.faces, process=False)
     assert degenerate_face_count(as_written) == 0 and mesh.is_watertight
+
+
+def test_other_methods_meshes_are_plain_marching_cubes():
+    """The hole mending is the fast mode's export heuristic (contract/methods.py `mends_mesh_gaps`): BF Lidar's
+    carving (the comparison: the published method) and PlatoNeRF's export keep the wall carved through to the box
+    open, as plain marching cubes does (the old code sealed it in every export; session 20)."""
+    from torch_recon.bflidar import BFLidarResult
+    from torch_recon.contract.methods import METHODS
+
+    assert [m.name for m in METHODS.values() if m.mends_mesh_gaps] == ["fast"]
+    g = np.linspace(-1, 1, 21)
+    x, y, z = np.meshgrid(g, g, g, indexing="ij")
+    column = (np.abs(y) < 0.05) & (np.abs(z) < 0.05)
+    wall = ((x > 0.85) & ~column).astype(np.float32)
+    res = BFLidarResult(occupancy=wall, probability=wall, bbox_min=np.full(3, -1.0), bbox_max=np.ones(3),
+                        counts_outside=None, counts_inside=None, visible=None, settings={"mesh_level": 0.5},
+                        seconds=0.0)
+
+    def tunnel(mesh):    # faces of the column's sides between the wall's last grid points (x = 0.9, 1.0: the box face)
+        c = mesh.triangles_center
+        return int(((np.abs(c[:, 1:]).max(1) < 0.15) & (c[:, 0] > 0.92) & (c[:, 0] < 0.99)).sum())
+
+    assert tunnel(res.mesh()) > 0
+    assert tunnel(mesh_from_volume(wall, [-1, -1, -1], [1, 1, 1], 0.5, mend_gaps=True)[0]) == 0

@@ -24,11 +24,13 @@ class Method:
     section: str        # its settings section (FitConfig.fast, FitConfig.platonerf, BaselineSettings.bflidar)
     model: str = ""     # 'module:callable(data, cfg, meas_meta, generator) -> FieldModel' for fit methods
     grid_setting: str = ""  # the setting holding its grid resolution (voxels along the longest side)
+    mends_mesh_gaps: bool = False  # its export closes the holes mesh_gaps.py explains (the fast field's; session 19):
+                                   # others' meshes stay plain marching cubes, the published method as it was
 
 
 METHODS = {m.name: m for m in (
     Method("fast", "Fast", "Grid field fit (default, CPU friendly)", "fit", "fast",
-           "torch_recon.recon.models:build_fast", "fast.resolution"),
+           "torch_recon.recon.models:build_fast", "fast.resolution", mends_mesh_gaps=True),
     Method("platonerf", "PlatoNeRF", "The published NeRF method (slow reference)", "fit", "platonerf",
            "torch_recon.recon.models:build_platonerf", "platonerf.volume_resolution"),
     Method("bflidar", "BF Lidar", "Bounce Flash Lidar baseline: visible depth + shadow carving", "baseline",

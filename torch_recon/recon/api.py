@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from ..contract.frames import pixel_rays
+from ..contract.methods import method
 from ..device import resolve_device
 from ..measurements import Measurements, MeasurementsError
 from .config import FitConfig
@@ -194,7 +195,8 @@ def _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, expo
                                                    smooth_iterations=cfg.mesh_smooth_iterations,
                                                    keep_near=_kept_island_centres(model),
                                                    inward=(model.mesh_inward(mvol, mlevel)
-                                                           if hasattr(model, "mesh_inward") else None))
+                                                           if hasattr(model, "mesh_inward") else None),
+                                                   mend_gaps=method(cfg.mode).mends_mesh_gaps)
                 result.mesh_files = {k: stage.final(v) for k, v in files.items()}
             except MeshExportError as exc:      # e.g. an early stop with nothing occupied yet
                 result.metadata["mesh_error"] = str(exc)
@@ -235,13 +237,14 @@ def _kept_island_centres(model):
 
 
 def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: dict, uv: bool = True,
-                  free_space=None, smooth_iterations: int = 0, free_points=None, keep_near=None, inward=None):
+                  free_space=None, smooth_iterations: int = 0, free_points=None, keep_near=None, inward=None,
+                  mend_gaps: bool = False):
     """Marching cubes + cleanup + UVs -> .glb (+ .ply, .obj) through the shared mesh exporter.
 
     free_space (same shape as volume, bool): report only surfaces facing measured free space;
     free_points: a point test of the same (mesh_export.mesh_from_volume);
-    smooth_iterations: Taubin smoothing passes; inward: the hull's bounded inward smoothing (both
-    mesh_export.mesh_from_volume).
+    smooth_iterations: Taubin smoothing passes; inward: the hull's bounded inward smoothing; mend_gaps: the
+    fast mode's hole mending (all mesh_export.mesh_from_volume).
 
     Our values sit at voxel centres; the exporter's grid points span its bbox corner to corner, so
     it gets the box of the centres.
@@ -252,7 +255,7 @@ def export_volume(volume, bbox_min, bbox_max, level, out_path: Path, metadata: d
     res = export_mesh(volume, lo, hi, level, Path(out_path).with_suffix(".glb"), metadata,
                       extra_formats=(".ply", ".obj"), uv=uv, free_space=free_space,
                       smooth_iterations=smooth_iterations, free_points=free_points, keep_near=keep_near,
-                      inward=inward)
+                      inward=inward, mend_gaps=mend_gaps)
     files = {p.suffix.lstrip("."): p for p in res.paths}
     files["sidecar"] = res.sidecar
     return files, res.mesh

@@ -7,7 +7,8 @@ the observation continue (`unobserved.py`); behind an object inside the view the
 lies: a mesh vertex no camera ray places (`hull_unplaced.camera_placed`), within `max_m` of a bounding plane and with
 its normal within 20 degrees of the plane's, goes onto it along the plane's normal. A table top or a seat is no
 bounding plane (the floor lies behind it), and an object's face meets a plane at an angle, so only the room's own
-surfaces move.
+surfaces move. A vertex whose move would fold a face of it over (turn its normal by more than 90 degrees, or make
+it zero-area) stays where it is (session 20).
 """
 
 from __future__ import annotations
@@ -20,6 +21,10 @@ from .unobserved import _PlaneModel
 NORMAL_COS = _PlaneModel.max_angle_cos
 #: passes: a furrow's side faces the plane only once its floor is on it (their normals are computed again each pass)
 PASSES = 3
+#: a vertex does not move when a face of it would end with its normal at this cosine or less to the normal it had
+#: before the snap (0: turned by 90 degrees or more, or collapsed): moving one vertex of a steep face past the
+#: others turns the face inside out (a fold the exporter's degenerate-face pass does not remove)
+FOLD_COS = 0.0
 
 
 def set_plane_snap(model, inward, max_voxels: float) -> None:
@@ -48,6 +53,7 @@ def snap_to_planes(mesh, placed: np.ndarray, lo, spacing, normals: np.ndarray, o
     if len(mesh.faces) == 0 or len(offsets) == 0:
         return mesh
     free = ~placed_vertices(mesh, placed, lo, spacing)
+    start = np.asarray(mesh.vertices, np.float64).copy()
     for _ in range(PASSES):
         v = np.asarray(mesh.vertices, np.float64).copy()
         vn = np.asarray(mesh.vertex_normals, np.float64)
@@ -58,4 +64,31 @@ def snap_to_planes(mesh, placed: np.ndarray, lo, spacing, normals: np.ndarray, o
         if not np.all(np.isfinite(v)):
             raise ValueError("moving the hull's vertices onto the bounding planes gave non-finite positions")
         mesh.vertices = v
+    # the passes' sum is checked (a face one pass tips past 90 degrees the next can right again: cave-chair's four)
+    mesh.vertices = _without_folds(v.copy(), start, np.asarray(mesh.faces))
     return mesh
+
+
+def _face_normals(v: np.ndarray, faces: np.ndarray):
+    """(unit normals (F, 3), area > 0 (F,) bool) of the triangles `faces` over the vertices `v`."""
+    cross = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+    length = np.linalg.norm(cross, axis=1)
+    return cross / np.maximum(length, 1e-300)[:, None], length > 0
+
+
+def _without_folds(v: np.ndarray, start: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """`v` with the moved vertices (v != start) of every face whose normal would end at FOLD_COS or less to its
+    normal at `start` (or with no area) put back at `start`, until no face is: each round puts back at least one
+    vertex, and a face with all its vertices back is as it was."""
+    moved = np.any(v != start, axis=1)
+    before, checked = _face_normals(start, faces)           # faces with no area at the start have no normal
+    while moved.any():
+        normal, has_area = _face_normals(v, faces)
+        folded = checked & moved[faces].any(1) & (~has_area | ((normal * before).sum(1) <= FOLD_COS))
+        if not folded.any():
+            break
+        back = np.unique(faces[folded])
+        back = back[moved[back]]
+        v[back] = start[back]
+        moved[back] = False
+    return v

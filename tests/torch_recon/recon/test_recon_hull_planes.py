@@ -95,3 +95,30 @@ def test_plane_snap_is_range_checked():
     for bad in (["fast.mesh_plane_snap_voxels=-1"], ["fast.mesh_plane_snap_voxels=3"], ["fast.mesh_plane_snap_voxels=nan"]):
         with pytest.raises(SettingsError, match="fast.mesh_plane_snap_voxels"):
             override(FitConfig(mode="fast"), bad)
+
+
+def test_a_vertex_whose_snap_would_fold_a_face_over_stays():
+    """A hidden floor vertex 0.05 m below the floor's plane with a steep sliver face rising from it to 0.02 m below
+    the plane (its other vertices face sideways, so they do not move): snapped up, the vertex passes them and the
+    sliver turns inside out (its normal by ~135 degrees). The vertex stays; the flat faces round it still go up,
+    and without the sliver the vertex snaps (the old code snapped it regardless; session 20)."""
+    ring = np.stack([np.cos(np.linspace(0, 2 * np.pi, 9)[:-1]), np.sin(np.linspace(0, 2 * np.pi, 9)[:-1]),
+                     np.full(8, -0.05)], 1)
+    sliver = np.array([[0.01, -0.005, -0.02], [0.01, 0.005, -0.02]])
+    verts = np.concatenate([[[0.0, 0.0, -0.05]], ring, sliver])
+    fan = [[0, 1 + i, 1 + (i + 1) % 8] for i in range(8)]                # faces up
+    placed = np.zeros((N, N, N), bool)
+
+    def snapped(faces):
+        m = trimesh.Trimesh(verts.copy(), np.array(faces), process=False)
+        before = m.face_normals.copy()
+        snap_to_planes(m, placed, LO, SPACING, *FLOOR, max_m=VOXEL)
+        return m, (m.face_normals * before).sum(1)
+
+    alone, _ = snapped(fan)
+    assert abs(alone.vertices[0, 2]) < 1e-12 and np.abs(alone.vertices[1:9, 2]).max() < 1e-12
+    m, turn = snapped(fan + [[0, 10, 9]])
+    assert m.face_normals[8, 0] > 0.9                                     # the sliver still faces +x (old: -0.89)
+    assert turn.min() > 0.0                                               # no face folded
+    assert m.vertices[0, 2] == -0.05 and np.abs(m.vertices[1:9, 2]).max() < 1e-12
+    assert np.array_equal(m.vertices[9:], sliver)
