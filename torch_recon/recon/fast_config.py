@@ -318,8 +318,9 @@ class FastConfig:
                                           # degrees of its, go onto it: the floor behind dark-room's box lay in furrows
                                           # 1-2 cm deep (lit segments grazing whole voxels). dark-room room > 5 mm off
                                           # 3.79 -> 3.42 % (the occluded floor 0.45 -> 0.19), objects within 0.001.
-                                          # Runs in mesh_hull_shrink_voxels' export step (inactive where that is 0;
-                                          # session 19, docs/reconstruction.md "Bumps on a dark room's walls"); 0: off
+                                          # Runs after mesh_hull_shrink_voxels' export step (also where that is 0,
+                                          # since session 20; session 19, docs/reconstruction.md "Bumps on a dark
+                                          # room's walls"); 0: off
     mesh_hull_flat_patch_faces: int = 15  # ... the patch size (coplanar faces of hull voxels towards carved space)
     mesh_hull_shrink_graze_samples: int = 4  # ... except hull voxels a shadowed segment grazes (crosses at most this
                                           # many marching samples of the hull: the shadow's edge); 0: none excepted

@@ -28,13 +28,13 @@ FOLD_COS = 0.0
 
 
 def set_plane_snap(model, inward, max_voxels: float) -> None:
-    """Fill mesh_export `InwardSmoothing`'s plane fields from the fast model's bounding planes (`init.room_planes`)."""
+    """Fill mesh_export `InwardSmoothing`'s plane fields from the fast model's bounding planes (`FastModel.room_planes`,
+    the ones the start field and the edge freeze read)."""
     from .hull_unplaced import camera_placed
-    from .init import room_planes
 
     box = model.grid.box
-    planes = room_planes(model.data, box, model.fc, model.visible_surface(box))
-    if max_voxels <= 0 or not planes:
+    planes = model.room_planes(box) if max_voxels > 0 else []
+    if not planes:
         return
     if tuple(model._start_raw.shape) != tuple(box.shape):
         raise ValueError("the start field's grid differs from the mesh field's: cannot tell placed vertices")

@@ -124,32 +124,39 @@ def in_view(data: RayData, box: GridBox, camera_to_world, fov_rad: float, fov_ax
     return ok.reshape(box.shape)
 
 
-def room_planes(data: RayData, box: GridBox, cfg, surface, in_view_known: bool = True) -> list:
-    """The planes bounding the observation (`unobserved.bounding_planes`) where a setting uses them, else []:
-    completing the unobserved space (needs the view: `in_view_known`), trimming the hull, concave corners."""
+def room_planes(data: RayData, box: GridBox, cfg, surface) -> list:
+    """The planes bounding the observation (`unobserved.bounding_planes`) of the visible `surface` (points, normals)
+    on `box`'s voxel size. Seeded: the same inputs give the same planes, so a fit computes them once per voxel size
+    (`FastModel.room_planes`) for every setting that reads them (`start_field_reads_planes`, the edge freeze, the
+    mesh's plane snap)."""
     from .unobserved import bounding_planes
-    if not ((cfg.complete_unobserved and in_view_known) or cfg.trim_hull_voxels > 0
-            or cfg.surface_concave_corners == "planes"):
-        return []
     return bounding_planes(*surface, data.sensor_origin.cpu().numpy(), data.spot_points.cpu().numpy(),
                            cfg.plane_tolerance_voxels * box.voxel, cfg.plane_min_support,
                            refit_mad=cfg.plane_refit_mad)
 
 
-def objects_measured_points(box: GridBox, cfg, surface, planes: list):
+def start_field_reads_planes(cfg, in_view_known: bool = True) -> bool:
+    """Whether `initial_grid` reads the room's bounding planes: completing the unobserved space (needs the view:
+    `in_view_known`), trimming the hull, concave corners, the objects' measured points."""
+    return ((cfg.complete_unobserved and in_view_known) or cfg.trim_hull_voxels > 0
+            or cfg.surface_concave_corners == "planes" or cfg.explain_measured_scale_voxels > 0)
+
+
+def objects_measured_points(data: RayData, box: GridBox, cfg, surface, planes: list | None = None):
     """The measured points a shadowed segment's blocker ranks by (`fast.explain_measured_scale_voxels`; None
-    when off): the visible points off the room's bounding planes (`room_planes`). Beside a chair's foot every
-    candidate is as near the floor's points, and blockers slid down onto it (session 17). The start field and
-    the spot advisor's voxel classes both take them from here."""
+    when off): the visible points off the room's bounding planes (`room_planes`; computed here when None). Beside a
+    chair's foot every candidate is as near the floor's points, and blockers slid down onto it (session 17). The
+    start field and the spot advisor's voxel classes both take them from here."""
     from .unobserved import on_planes
     if cfg.explain_measured_scale_voxels <= 0:
         return None
+    planes = room_planes(data, box, cfg, surface) if planes is None else planes
     pts = np.asarray(surface[0])
     return torch.as_tensor(pts[~on_planes(pts, surface[1], planes, cfg.plane_tolerance_voxels * box.voxel)])
 
 
 def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0.0, view=None, surface=None,
-                 seen_free=None, thin_points=None):
+                 seen_free=None, thin_points=None, planes=None):
     """The fast mode's starting field (cfg: FastConfig), the voxels the mesh may face (nx, ny, nz) bool and the
     voxels' evidence it was built from (`voxel_evidence.VoxelEvidence`: the mesh export reads it back).
 
@@ -164,14 +171,16 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     a lit voxel stays free (thin parts keep their thickness), and so does a voxel the sensor saw through
     (beside an object's silhouette, where the plane of its face would extend).
     surface: `visible_surface(data, box)` (points, normals) when already computed; thin_points likewise
-    `thin_parts.thin_part_cloud` (the model's frozen thin-part mask uses the same points).
+    `thin_parts.thin_part_cloud` (the model's frozen thin-part mask uses the same points), and planes `room_planes`
+    (computed here when None and `start_field_reads_planes`).
     """
     from .beyond_view import lit_side_of_hull, out_of_view_spots, unneeded_beside_view
     from .unobserved import on_planes, shell_signed_distance
 
     surface = visible_surface(data, box) if surface is None else surface
-    planes = room_planes(data, box, cfg, surface, view is not None)
-    measured = objects_measured_points(box, cfg, surface, planes)
+    if planes is None:
+        planes = room_planes(data, box, cfg, surface) if start_field_reads_planes(cfg, view is not None) else []
+    measured = objects_measured_points(data, box, cfg, surface, planes)
     evidence, shadow_count = configured_evidence_grid(data, box, cfg, secondary_offset_m, seen_free,
                                                       count_shadow=cfg.trim_hull_voxels > 0, thin_points=thin_points,
                                                       measured_points=measured)

@@ -8,6 +8,8 @@ A model owns its field(s) and optimiser and exposes: `loss(idx, step, total, gen
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -18,13 +20,14 @@ from .config import FitConfig
 from .data import RayData, lit_path_tolerance, unexplained_lit, without_lit
 from .fields import DensityGrid, GridBox, dilate_cube
 from .hull_subvoxel import SHRINK_ITERATIONS, binary_boundary_inset, shrinkable_hull
-from .init import grid_bbox, in_view, initial_grid
+from .freeze_masks import frozen_voxels, masked_gradient, masks_gradient, measured_trainable, thin_part_mask
+from .init import grid_bbox, in_view, initial_grid, room_planes, start_field_reads_planes
 from .losses import all_finite
 from .model_interface import ReconstructionModel, pair_loss, rendered_depth
 from .renderer import render_pruned
 from .sampler import ray_box
 from .smoothness import NormalConsistencyPrior
-from .thin_parts import thin_part_cloud, thin_part_signed_distance, thin_part_voxels
+from .thin_parts import thin_part_cloud
 from .visible_surface_init import (coarse_sensor_seen_free, in_front_of_visible_surface, seen_depth,
                                    seen_free_points, surface_offset, visible_surface)
 
@@ -38,6 +41,7 @@ class FastModel(ReconstructionModel):
         self.device = data.pixel_dirs.device
         self.bbox = grid_bbox(data, self.fc.resolution, self.fc.bbox_margin_voxels)
         self._surface = None    # (voxel, visible surface) of the latest grid: the start field and the mesh share it
+        self._planes = None     # (voxel, room_planes) likewise: the start field, the edge freeze and the plane snap
         self._thin_points = None    # (voxel, thin_part_cloud) of the latest grid: the start field and `thin_parts`
         self.evidence = None        # the latest start field's VoxelEvidence: the mesh export reads it back
         self._start_raw = None      # ... and its raw density (nx, ny, nz), where the hull's placement reads it
@@ -53,21 +57,23 @@ class FastModel(ReconstructionModel):
         self._thin_index = None     # (thin_parts, their flat indices) for the gradient mask
         self._normal_cells = None
         self._set_measured_mask(self.grid.raw)
-        self._set_thin_parts(self.grid.box)
-        self._set_spot_surfaces(self.grid.box)
+        self._set_freeze_masks(self.grid.box)
         self.occupancy = None
         self.refresh_occupancy()
         self.make_optimizer()
 
     def _initial(self, res=None, box=None):
         """The start field and its free space on `box`, or on a new box of `res` voxels along the longest side; its
-        evidence (and, for the hull's inward smoothing, its raw density) are kept for the mesh export."""
+        evidence (and, for the hull's inward smoothing and the plane snap, its raw density) are kept for the mesh
+        export."""
         box = GridBox(self.bbox[0], self.bbox[1], res).to(self.device) if box is None else box
         seen = coarse_sensor_seen_free(self.data, box, self.fc, self.meta)
+        planes = self.room_planes(box) if start_field_reads_planes(self.fc) else []
         start, free, self.evidence = initial_grid(self.data, box, self.fc, self.offset_for(box.voxel), self._view(box),
                                                   self.visible_surface(box), seen_free=seen,
-                                                  thin_points=self.thin_points(box))
-        if self.fc.mesh_hull_shrink_voxels > 0:     # a copy: training changes the grid in place
+                                                  thin_points=self.thin_points(box), planes=planes)
+        # a copy (training changes the grid in place): the hull's shrink and the plane snap tell placed voxels by it
+        if self.fc.mesh_hull_shrink_voxels > 0 or self.fc.mesh_plane_snap_voxels > 0:
             self._start_raw = start.raw_xyz().detach().clone()
         return start, free
 
@@ -88,6 +94,14 @@ class FastModel(ReconstructionModel):
             self._surface = (box.voxel, visible_surface(self.data, box))
         return self._surface[1]
 
+    def room_planes(self, box):
+        """`init.room_planes` (the planes bounding the observation) for `box`'s voxel size, computed once per grid
+        level: every setting that reads them shares them (RANSAC, 0.3-0.5 s a time: session 19 fitted them three
+        times per fit)."""
+        if self._planes is None or self._planes[0] != box.voxel:
+            self._planes = (box.voxel, room_planes(self.data, box, self.fc, self.visible_surface(box)))
+        return self._planes[1]
+
     def thin_points(self, box):
         """`thin_part_cloud` (N, 3) for `box`'s voxel size, computed once per grid level; None where the fit
         places no thin parts (`fast.nearest_surface` off, or no earliest returns measured)."""
@@ -104,91 +118,16 @@ class FastModel(ReconstructionModel):
         stop in the frozen surface band), so its warm-up would be idle steps."""
         return self.fc.freeze_measured
 
+    def _set_freeze_masks(self, box):
+        """The thin parts' mask and the frozen voxels of the grid `box` (freeze_masks.py)."""
+        self.thin_parts = thin_part_mask(self, box)
+        self.frozen_voxels = frozen_voxels(self, box)
+
     def _set_measured_mask(self, raw):
-        """`trainable` (the mask below) and `raw_start` (the start values the anchor prior pulls to) of the
-        start field `raw`; both None when neither freezing nor the anchor asks for them."""
-        self.trainable = self._trainable(raw)
+        """`trainable` (freeze_masks.measured_trainable) and `raw_start` (the start values the anchor prior pulls to)
+        of the start field `raw`; both None when neither freezing nor the anchor asks for them."""
+        self.trainable = measured_trainable(self, raw)
         self.raw_start = None if self.trainable is None else raw.detach().clone()
-
-    def _trainable(self, raw):
-        """Voxels (raw layout (1, 1, nz, ny, nx), bool) the optimiser may change, or None (all).
-
-        Frozen with `fast.freeze_measured`: what the sensor measured directly (known free space: seen
-        through by the sensor or crossed by a lit secondary ray; and the visible-surface ramp, dilated by
-        `fast.freeze_dilate_voxels` so the occupied voxel behind the surface that the marching-cubes
-        crossing interpolates to stays too). Left to the shadow loss: the hidden hull, the restored
-        blockers and the unmeasured space outside the view."""
-        if not (self.fc.freeze_measured or self.fc.anchor_weight > 0):
-            return None
-        with torch.no_grad():
-            ramp = (raw > self.fc.raw_free + 1e-3) & (raw < self.fc.raw_occupied - 1e-3)
-            r = int(self.fc.freeze_dilate_voxels)
-            if r >= 1:
-                ramp = dilate_cube(ramp.float(), r) > 0        # max_pool3d(., 2 r + 1, 1, r)
-            free = self.free.permute(2, 1, 0)[None, None].to(raw.device)
-            return ~(ramp | free)
-
-    def _set_thin_parts(self, box):
-        """`thin_parts`: the voxels (raw layout, bool) holding a thin part's point that `fast.thin_part_training`
-        keeps from eroding, or None ('free'). A part a voxel wide has no neighbour to prop it up: the camera and
-        lit rays passing it (they see past a part under a pixel wide) lower it below the surface in a few dozen
-        steps, and a pole or a leg breaks where one voxel of its column goes."""
-        self.thin_parts = None
-        points = self.thin_points(box)
-        if self.fc.thin_part_training != "free" and points is not None:
-            fc = self.fc
-            if fc.thin_part_radius_voxels > 0:     # the tube's whole ramp: it holds the part's place
-                vox = torch.isfinite(thin_part_signed_distance(self.data, box, fc.thin_part_radius_voxels * box.voxel,
-                                                               fc.thin_part_edges, fc.thin_part_centre, points))
-            else:
-                vox = thin_part_voxels(self.data, box, fc.thin_part_edges, fc.thin_part_centre, points)
-            self.thin_parts = vox.permute(2, 1, 0)[None, None].to(self.device)
-
-    def _set_spot_surfaces(self, box):
-        """`spot_surfaces`: flat raw-layout indices of the voxels training leaves at their start value, or None (off):
-        those within `fast.freeze_spot_radius_voxels` of a laser spot (every secondary ray of a spot leaves through
-        them: their transmittance gradient, summed over all of the spot's pixels, dents the spot's own measured
-        surface, 1-1.5 cm at 3 cm voxels, session 18) and those along the room's concave edges
-        (`fast.freeze_plane_edges_voxels`: training specked the grid's rounded edge, session 19)."""
-        self.spot_surfaces = None
-        r = self.fc.freeze_spot_radius_voxels
-        near = torch.zeros(box.shape, dtype=torch.bool)
-        if r > 0 and len(self.data.spot_points):
-            near = box.near_points(self.data.spot_points, r * box.voxel).cpu()
-        if self.fc.freeze_plane_edges_voxels > 0:
-            from .init import room_planes
-            from .unobserved import plane_edge_voxels
-            surface = self.visible_surface(box)
-            planes = room_planes(self.data, box, self.fc, surface)
-            near |= plane_edge_voxels(box, planes, surface[0], self.fc.freeze_plane_edges_voxels * box.voxel)
-        if near.any():
-            self.spot_surfaces = torch.nonzero(near.permute(2, 1, 0).reshape(-1)).reshape(-1).to(self.device)
-
-    def _gradient_mask(self, g):
-        """The raw-density gradient the optimiser sees: zero on frozen measured voxels (`fast.freeze_measured`),
-        round the laser spots and along the room's concave edges (`spot_surfaces`) and on thin parts (`fast.thin_part_training`: all
-        of it when 'frozen', the part pushing them down when 'grow'); Adam's step follows the sign of its masked
-        gradient, so a zeroed direction never moves. The caller's gradient is left alone."""
-        caller = g      # copied once, before the first in-place change
-        if self.trainable is not None and self.fc.freeze_measured:
-            g = g * self.trainable.to(g.dtype)
-        if self.spot_surfaces is not None:
-            g = g.clone() if g is caller else g
-            g.view(-1).index_fill_(0, self.spot_surfaces.to(g.device), 0.0)
-        if self.thin_parts is not None:
-            # the same values as g.masked_fill(stop, 0.0), at the thin parts' few voxels instead of the whole grid
-            # (4.1 -> 1.4 ms per step on 128^3 voxels, session 17)
-            if self._thin_index is None or self._thin_index[0] is not self.thin_parts:
-                self._thin_index = (self.thin_parts, torch.nonzero(self.thin_parts.reshape(-1)).reshape(-1))
-            idx = self._thin_index[1].to(g.device)
-            g = g.clone() if g is caller else g
-            flat = g.view(-1)
-            if self.fc.thin_part_training == "frozen":
-                flat.index_fill_(0, idx, 0.0)
-            else:
-                vals = flat[idx]
-                flat[idx] = torch.where(vals > 0, torch.zeros_like(vals), vals)
-        return g
 
     def fixed_depth(self, px):
         """The visible depth of pixels `px` where the surface band is frozen (NaN where unknown)."""
@@ -234,9 +173,8 @@ class FastModel(ReconstructionModel):
         if self._hook is not None:      # one gradient mask at a time, also when called again on the same grid
             self._hook.remove()
             self._hook = None
-        if ((self.trainable is not None and self.fc.freeze_measured) or self.thin_parts is not None
-                or self.spot_surfaces is not None):
-            self._hook = self.grid.raw.register_hook(self._gradient_mask)
+        if masks_gradient(self):
+            self._hook = self.grid.raw.register_hook(partial(masked_gradient, self))
 
     def refresh_occupancy(self):
         self._normal_prior = None       # the surface band moves with the field
@@ -266,8 +204,7 @@ class FastModel(ReconstructionModel):
             if self.trainable is not None:  # the mask of the fine level: from its own start field (built
                 start, self.free = self._initial(box=self.grid.box)     # once: free_evidence reuses `free`)
                 self._set_measured_mask(start.raw)
-            self._set_thin_parts(self.grid.box)
-            self._set_spot_surfaces(self.grid.box)
+            self._set_freeze_masks(self.grid.box)
             self.refresh_occupancy()
             self.make_optimizer()
             return True
@@ -362,16 +299,32 @@ class FastModel(ReconstructionModel):
 
     def mesh_inward(self, volume, level: float):
         """The mesh's bounded inward smoothing of the hidden hull (`mesh_export.InwardSmoothing`;
-        `fast.mesh_hull_shrink_voxels`, hull_subvoxel.py) of the mesh field `volume` (`surface_volume`), or None."""
-        if self.fc.mesh_hull_shrink_voxels <= 0:
+        `fast.mesh_hull_shrink_voxels`, hull_subvoxel.py) of the mesh field `volume` (`surface_volume`), or None; the
+        plane snap (`fast.mesh_plane_snap_voxels`, hull_planes.py) rides on it, also with the shrink off (nothing
+        movable then: mesh_export snaps after the smoothing)."""
+        shrink, snap = self.fc.mesh_hull_shrink_voxels, self.fc.mesh_plane_snap_voxels
+        if shrink <= 0 and snap <= 0:
             return None
         if self._start_raw is None or tuple(self._start_raw.shape) != tuple(self.grid.box.shape):
             self._initial(box=self.grid.box)        # (sets the evidence of this grid too)
-        vol = torch.as_tensor(volume)
-        saturated = vol >= level + 0.5 * (float(vol.max()) - level)
-        movable = shrinkable_hull(self, self._start_raw, self.evidence, self.fc.mesh_hull_shrink_graze_samples, saturated)
-        out = InwardSmoothing(movable.cpu().numpy(), self.fc.mesh_hull_shrink_voxels * self.grid.box.voxel,
-                              SHRINK_ITERATIONS)
+        if shrink > 0:
+            vol = torch.as_tensor(volume)
+            saturated = vol >= level + 0.5 * (float(vol.max()) - level)
+            movable = shrinkable_hull(self, self._start_raw, self.evidence, self.fc.mesh_hull_shrink_graze_samples,
+                                      saturated).cpu().numpy()
+        else:
+            movable = np.zeros(tuple(self.grid.box.shape), bool)
+        out = InwardSmoothing(movable, max(shrink, 0.0) * self.grid.box.voxel, SHRINK_ITERATIONS)
+        if shrink > 0:
+            self._hull_passes(out)
+        if snap > 0:      # hull_planes.py
+            from .hull_planes import set_plane_snap
+            set_plane_snap(self, out, snap)
+        return out
+
+    def _hull_passes(self, out) -> None:
+        """The hull's flat patches, lit fans and unplaced Taubin passes into `out` (`InwardSmoothing`), each on its
+        setting."""
         flat = None
         if self.fc.mesh_hull_flat_approach:     # hull_flat.py
             from .hull_flat import flat_patches_inward
@@ -383,10 +336,6 @@ class FastModel(ReconstructionModel):
             from .hull_unplaced import set_unplaced_smoothing
             set_unplaced_smoothing(self, out, self.fc.mesh_unplaced_taubin_iterations, self.fc.mesh_unplaced_max_voxels,
                                    self.fc.mesh_unplaced_silhouettes)
-        if self.fc.mesh_plane_snap_voxels > 0:      # hull_planes.py
-            from .hull_planes import set_plane_snap
-            set_plane_snap(self, out, self.fc.mesh_plane_snap_voxels)
-        return out
 
     def params_finite(self) -> bool:
         return all_finite(self.grid.raw)

@@ -193,7 +193,8 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
     sensor = SimpleNamespace(width=meas.width, height=meas.height, fov_rad=meas.fov_rad, fov_axis=meas.fov_axis,
                              camera_to_world=meta["camera_to_world"])
     fit_offset = max(fit_settings["loss"]["secondary_offset_m"], fast["secondary_offset_voxels"] * box.voxel)
-    cls = voxel_classes(data, box, opacity, level, fast, meta, fit_offset, back_faces=s.back_faces)
+    surface = visible_surface(data, box)    # the voxel classes' and the segments' far ends (computed once)
+    cls = voxel_classes(data, box, opacity, level, fast, meta, fit_offset, back_faces=s.back_faces, surface=surface)
     hull_flat = torch.nonzero((cls == HULL) | (cls == FACE)).squeeze(1)
     hull_index = torch.full((cls.numel(),), -1, dtype=torch.long, device=dev)
     hull_index[hull_flat] = torch.arange(len(hull_flat), device=dev)
@@ -204,7 +205,7 @@ def advise_spots(dataset, fit_dir, settings: AdviceSettings | None = None, measu
 
     # the segments' far ends: the sensor-visible points (every stride-th pixel) and their normals
     h, w = meas.height, meas.width
-    pts_all, nrm_all = (torch.as_tensor(a, dtype=torch.float32, device=dev) for a in visible_surface(data, box))
+    pts_all, nrm_all = (torch.as_tensor(a, dtype=torch.float32, device=dev) for a in surface)
     valid = torch.isfinite(data.visible_depth).reshape(h, w)
     pix = torch.nonzero(valid)                                  # (row, col) of each visible point, row-major
     on_grid = (pix[:, 0] % s.pixel_stride == 0) & (pix[:, 1] % s.pixel_stride == 0)

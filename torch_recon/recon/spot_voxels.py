@@ -14,7 +14,7 @@ import math
 import torch
 
 from .fields import GridBox, dilate_cube
-from .init import in_view, objects_measured_points, room_planes
+from .init import in_view, objects_measured_points
 from .segment_crossings import marching_cells
 from .spot_geometry import back_facing_free
 from .visible_surface_init import coarse_sensor_seen_free, visible_surface
@@ -28,12 +28,13 @@ SURFACE_BAND_VOXELS = 2
 
 
 def voxel_classes(data, box: GridBox, opacity, level, fast: dict, meta: dict, offset_m: float,
-                  back_faces: bool = False) -> torch.Tensor:
+                  back_faces: bool = False, surface=None) -> torch.Tensor:
     """Flat (x-major) class per voxel: HULL (shadow hull in the measured space, crossed by no lit segment,
     still occupied after training, more than SURFACE_BAND_VOXELS from a measured surface), FACE (such a voxel
     within the band that bounds free space on its side away from the sensor: `back_facing_free`; with
     `back_faces`), SOLID (every other occupied voxel: measured surfaces, blockers, the completed planes) or
-    FREE. offset_m: the fit's secondary ray offset (FastModel.offset_for)."""
+    FREE. offset_m: the fit's secondary ray offset (FastModel.offset_for); surface: `visible_surface(data, box)` when
+    already computed."""
     import dataclasses
 
     from .fast_config import FastConfig
@@ -42,8 +43,8 @@ def voxel_classes(data, box: GridBox, opacity, level, fast: dict, meta: dict, of
     # labelled as the fit's start field on its final grid (a coarse sensor's seen-free space included; blockers
     # ranked by the same objects' measured points)
     seen = coarse_sensor_seen_free(data, box, cfg, meta)
-    surface = visible_surface(data, box)
-    measured = objects_measured_points(box, cfg, surface, room_planes(data, box, cfg, surface))
+    surface = visible_surface(data, box) if surface is None else surface
+    measured = objects_measured_points(data, box, cfg, surface)
     label = configured_evidence_grid(data, box, cfg, offset_m, seen_free=seen, measured_points=measured)[0].label
     view = in_view(data, box, meta["camera_to_world"], meta["fov_rad"], meta["fov_axis"])
     occupied = torch.as_tensor(opacity >= level, device=label.device)

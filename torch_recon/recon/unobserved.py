@@ -143,23 +143,3 @@ def shell_signed_distance(centres: torch.Tensor, planes: list[Plane]) -> torch.T
     off = torch.as_tensor([p.offset for p in planes], dtype=centres.dtype, device=centres.device)
     return (off - centres @ n.T).amax(-1)
 
-
-def plane_edge_voxels(box, planes: list[Plane], points, radius_m: float) -> torch.Tensor:
-    """bool (nx, ny, nz): voxels whose centre lies within `radius_m` of two non-parallel `planes` (a concave edge
-    of the room) and of one of the measured `points` (N, 3): the edge is seen there."""
-    from scipy.spatial import cKDTree
-    out = torch.zeros(box.shape, dtype=torch.bool)
-    if len(planes) < 2 or len(points) == 0:
-        return out
-    c = box.centres().double().cpu().numpy().reshape(-1, 3)
-    near = np.stack([np.abs(p.signed_distance(c)) <= radius_m for p in planes])     # (P, V)
-    edge = np.zeros(len(c), bool)
-    for i in range(len(planes)):
-        for j in range(i + 1, len(planes)):
-            if abs(float(planes[i].normal @ planes[j].normal)) < 0.9:
-                edge |= near[i] & near[j]
-    idx = np.nonzero(edge)[0]
-    if len(idx):
-        d, _ = cKDTree(np.asarray(points, np.float64)).query(c[idx], distance_upper_bound=radius_m)
-        edge[idx[~np.isfinite(d)]] = False
-    return torch.from_numpy(edge.reshape(box.shape))

@@ -38,6 +38,7 @@ def test_thin_part_gradient_mask_is_masked_fill(training):
     from tests.torch_recon.recon.test_recon_fit import small_config
     from tests.torch_recon.recon.test_recon_freeze import _meta
     from torch_recon.recon.data import build_ray_data
+    from torch_recon.recon.freeze_masks import masked_gradient
     from torch_recon.recon.models import FastModel
 
     meas = box_floor_measurements(32)
@@ -53,10 +54,10 @@ def test_thin_part_gradient_mask_is_masked_fill(training):
     g.view(-1)[50:100] = -0.0
     stop = model.thin_parts if training == "frozen" else model.thin_parts & (g > 0)
     ref = g.masked_fill(stop, 0.0)
-    got = model._gradient_mask(g)
+    got = masked_gradient(model, g)
     assert _same(got, ref) and torch.equal(torch.signbit(got), torch.signbit(ref))
     assert not torch.equal(torch.nan_to_num(g), torch.nan_to_num(got))      # the caller's gradient is left alone
     model.thin_parts = model.thin_parts.clone()         # a new mask (a resumed fit): its own voxels
     model.thin_parts.view(-1)[:500] = True
     stop = model.thin_parts if training == "frozen" else model.thin_parts & (g > 0)
-    assert _same(model._gradient_mask(g), g.masked_fill(stop, 0.0))
+    assert _same(masked_gradient(model, g), g.masked_fill(stop, 0.0))

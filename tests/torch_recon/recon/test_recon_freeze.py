@@ -11,6 +11,7 @@ from tests.torch_recon.recon.test_recon_fit import small_config
 
 from torch_recon.recon import fit  # noqa: E402
 from torch_recon.recon.data import build_ray_data
+from torch_recon.recon.freeze_masks import measured_trainable
 from torch_recon.recon.models import FastModel
 
 
@@ -99,7 +100,7 @@ def test_trained_floor_stays_flat_when_frozen(meas, tmp_path):
 
 
 def test_mask_helpers_have_no_side_effects_and_one_gradient_hook(meas):
-    """`_trainable` only computes the mask (raw_start is set by `_set_measured_mask`); rebuilding the optimiser
+    """`measured_trainable` only computes the mask (raw_start is set by `_set_measured_mask`); rebuilding the optimiser
     on the same grid keeps a single gradient mask."""
     cfg = frozen_config()
     data = build_ray_data(meas)
@@ -107,7 +108,7 @@ def test_mask_helpers_have_no_side_effects_and_one_gradient_hook(meas):
     assert model.raw_start is not None and torch.equal(model.raw_start, model.grid.raw.detach())
     before = model.raw_start
     other = torch.full_like(model.grid.raw, cfg.fast.raw_occupied)
-    assert model._trainable(other) is not None and model.raw_start is before
+    assert measured_trainable(model, other) is not None and model.raw_start is before
     model.make_optimizer()
     model.make_optimizer()
     assert len(model.grid.raw._backward_hooks) == 1
@@ -180,7 +181,7 @@ def test_the_voxels_round_a_laser_spot_keep_their_start_values(meas):
         cfg, start, raw0 = _start(meas, freeze_spot_radius_voxels=radius, freeze_plane_edges_voxels=0.0)
         box = start.grid.box
         near = box.near_points(start.data.spot_points, 2.0 * box.voxel).permute(2, 1, 0)[None, None]
-        assert near.any() and (start.spot_surfaces is None) == (radius == 0)
+        assert near.any() and (start.frozen_voxels is None) == (radius == 0)
         if radius > 0:      # the hook zeroes exactly those voxels
             start.grid.raw.sum().backward()
             assert torch.equal(start.grid.raw.grad == 0, near)
@@ -203,7 +204,7 @@ def test_the_voxels_along_a_rooms_concave_edges_keep_their_start_values(meas):
     """fast.freeze_plane_edges_voxels: voxels within R voxels of two bounding planes (floor and back wall) and of
     a measured point keep their start value (training specked the grid's rounded edge); the rest trains."""
     from torch_recon.recon.init import room_planes
-    from torch_recon.recon.unobserved import plane_edge_voxels
+    from torch_recon.recon.freeze_masks import plane_edge_voxels
 
     cfg, start, raw0 = _start(meas, freeze_spot_radius_voxels=0.0, freeze_plane_edges_voxels=2.0)
     box = start.grid.box
@@ -221,7 +222,8 @@ def test_the_voxels_along_a_rooms_concave_edges_keep_their_start_values(meas):
 
 def test_plane_edge_voxels_are_near_two_planes_and_a_measured_point():
     from torch_recon.recon.fields import GridBox
-    from torch_recon.recon.unobserved import Plane, plane_edge_voxels
+    from torch_recon.recon.freeze_masks import plane_edge_voxels
+    from torch_recon.recon.unobserved import Plane
 
     box = GridBox([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], 10)
     floor, wall = Plane(np.array([0.0, 0.0, 1.0]), 0.0, 0.5), Plane(np.array([0.0, -1.0, 0.0]), -1.0, 0.5)
