@@ -10,7 +10,13 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+
+# Before any command imports torch: its OpenMP threads sleep when idle instead of spinning. On a machine where
+# another process holds a core, spinning threads wait on each other: a 2-thread cave-chair fit took 69-74 s at
+# load 3 against 43-52 s with this (session 20, docs/benchmarks.md "Known issues"). A user's own setting wins.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 #: (module, what it provides) in the order shown by --help
 COMMAND_MODULES = (

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -82,3 +83,19 @@ def test_fit_cli_errors_are_one_line(meas_file, tmp_path, run_cli):
     bad.write_text("{not json")
     p = run_cli(meas_file, "--out", tmp_path / "o", "--config", bad)
     assert p.returncode == 2 and "not valid JSON" in p.stderr
+
+
+@pytest.mark.parametrize("user_value, expected", [(None, "PASSIVE"), ("ACTIVE", "ACTIVE")])
+def test_cli_lets_idle_openmp_threads_sleep_unless_the_user_chose(user_value, expected):
+    # set before torch is imported (libgomp reads it once): spinning threads made a 2-thread fit 1.5x slower
+    # while another process held a core (session 20)
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    if user_value:
+        env["OMP_WAIT_POLICY"] = user_value
+    code = ("import sys, os, torch_recon.cli; assert 'torch' not in sys.modules; "
+            "print(os.environ.get('OMP_WAIT_POLICY'))")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == expected
