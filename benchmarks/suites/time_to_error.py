@@ -119,18 +119,14 @@ class _Scorer:
 
 def _mesh_of(model):
     """The mesh `fit` would export from the model's current field (no UVs, no files); None for an empty field."""
-    from torch_recon.contract.methods import method
     from torch_recon.mesh_export import MeshExportError, mesh_from_volume
-    from torch_recon.recon.api import voxel_centre_box
+    from torch_recon.recon.api import mesh_inputs, voxel_centre_box
 
-    cfg = model.cfg
     vol, lo, hi = model.density_volume()
-    vol, level = model.surface_volume() if hasattr(model, "surface_volume") else (vol, cfg.mesh_level)
     free = model.free_evidence() if hasattr(model, "free_evidence") else None
+    mvol, level, args = mesh_inputs(model, model.cfg, vol, free)
     try:
-        mesh = mesh_from_volume(vol, *voxel_centre_box(vol, lo, hi), level, free_space=free,
-                                smooth_iterations=cfg.mesh_smooth_iterations,
-                                mend_gaps=method(cfg.mode).mends_mesh_gaps)[0]
+        mesh = mesh_from_volume(mvol, *voxel_centre_box(mvol, lo, hi), level, **args)[0]
     except MeshExportError:
         return None
     return mesh if len(mesh.faces) else None

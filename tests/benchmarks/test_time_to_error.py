@@ -53,3 +53,21 @@ def test_volume_depth_scores_the_fields_own_rendering():
     score.views = types.SimpleNamespace(width=8, height=6, fov_rad=0.8, fov_axis="x")
     score.cams, score.gt, score.es = [np.eye(4)] * 2, np.full((2, 6, 8), 3.0, np.float32), EvalSettings()
     assert abs(score.volume_depth(FlatField())["depth_l1_volume_m"] - 1.0) < 1e-6
+
+
+def test_checkpoint_mesh_is_the_mesh_fit_exports(tmp_path):
+    """A checkpoint is scored on the mesh `fit` writes (inward smoothing, plane snap, kept thin parts and all), not
+    on a plainer one: `_mesh_of` of the fitted model = the exported mesh.ply."""
+    import numpy as np
+    import trimesh
+
+    from benchmarks.suites.time_to_error import _mesh_of
+    from tests.support.recon_fixtures import box_floor_measurements
+    from tests.torch_recon.recon.test_recon_fit import small_config
+    from torch_recon.recon import fit
+
+    r = fit(box_floor_measurements(32), out=tmp_path, config=small_config(steps=4), uv=False)
+    written = trimesh.load(r.mesh_files["ply"], process=False)
+    scored = _mesh_of(r.model)
+    assert scored is not None and scored.faces.shape == written.faces.shape
+    assert np.allclose(scored.vertices, written.vertices, atol=1e-5)

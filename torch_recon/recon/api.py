@@ -162,7 +162,6 @@ def _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, expo
                data_key=src_hash)
     vol, lo, hi = model.density_volume()
     free = model.free_evidence() if hasattr(model, "free_evidence") else None
-    free_points = model.free_points_test() if hasattr(model, "free_points_test") else None
     result = FitResult(mode=cfg.mode, model=model, train=tr, setup_seconds=setup, total_seconds=0.0,
                        volume=vol, bbox_min=lo, bbox_max=hi, level=cfg.mesh_level, source_hash=src_hash,
                        out_dir=out_dir)
@@ -188,15 +187,9 @@ def _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, expo
             from ..mesh_export import MeshExportError
 
             try:
-                mvol, mlevel = (model.surface_volume() if hasattr(model, "surface_volume")
-                                else (vol, cfg.mesh_level))
+                mvol, mlevel, mesh_args = mesh_inputs(model, cfg, vol, free)
                 files, result.mesh = export_volume(mvol, lo, hi, mlevel, staged / "mesh", result.metadata,
-                                                   uv=uv, free_space=free, free_points=free_points,
-                                                   smooth_iterations=cfg.mesh_smooth_iterations,
-                                                   keep_near=_kept_island_centres(model),
-                                                   inward=(model.mesh_inward(mvol, mlevel)
-                                                           if hasattr(model, "mesh_inward") else None),
-                                                   mend_gaps=method(cfg.mode).mends_mesh_gaps)
+                                                   uv=uv, **mesh_args)
                 result.mesh_files = {k: stage.final(v) for k, v in files.items()}
             except MeshExportError as exc:      # e.g. an early stop with nothing occupied yet
                 result.metadata["mesh_error"] = str(exc)
@@ -209,6 +202,20 @@ def _fit_and_write(meas, src_hash, data, cfg, dev, stage, t_start, on_eval, expo
         (stage.path / REPORT_NAME).write_text(json.dumps(report, indent=2, default=str) + "\n")
         stage.commit()      # volume, mesh files and fit.json replace the previous ones together
     return result
+
+
+def mesh_inputs(model, cfg, vol, free):
+    """What `fit` meshes from `model` (its density volume `vol`, free evidence `free`): (volume, level, the keyword
+    arguments of `export_volume` / `mesh_export.mesh_from_volume` but the UVs). One place, so a benchmark scoring a
+    checkpoint's mesh scores the mesh `fit` would write."""
+    mvol, mlevel = model.surface_volume() if hasattr(model, "surface_volume") else (vol, cfg.mesh_level)
+    return mvol, mlevel, {
+        "free_space": free,
+        "free_points": model.free_points_test() if hasattr(model, "free_points_test") else None,
+        "smooth_iterations": cfg.mesh_smooth_iterations,
+        "keep_near": _kept_island_centres(model),
+        "inward": model.mesh_inward(mvol, mlevel) if hasattr(model, "mesh_inward") else None,
+        "mend_gaps": method(cfg.mode).mends_mesh_gaps}
 
 
 def voxel_centre_box(volume, bbox_min, bbox_max):

@@ -105,7 +105,11 @@ def masked_gradient(model, g):
     the part pushing them down when 'grow'). The caller's gradient is left alone."""
     caller = g      # copied once, before the first in-place change
     if model.trainable is not None and model.fc.freeze_measured:
-        g = g * model.trainable.to(g.dtype)
+        # the mask cast once per mask, not every step (2.8 -> 0.9 ms per step on 128^3 voxels, session 20)
+        cast = model._trainable_cast
+        if cast is None or cast[0] is not model.trainable or cast[1].dtype != g.dtype or cast[1].device != g.device:
+            cast = model._trainable_cast = (model.trainable, model.trainable.to(g.device, g.dtype))
+        g = g * cast[1]
     if model.frozen_voxels is not None:
         g = g.clone() if g is caller else g
         g.view(-1).index_fill_(0, model.frozen_voxels.to(g.device), 0.0)

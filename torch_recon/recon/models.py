@@ -55,6 +55,7 @@ class FastModel(ReconstructionModel):
         self._training_data = without_lit(data, unexplained_lit(data, tol)) if tol > 0 else data
         self._hook = None
         self._thin_index = None     # (thin_parts, their flat indices) for the gradient mask
+        self._trainable_cast = None     # (trainable, the same mask as the gradient's dtype): cast once
         self._normal_cells = None
         self._set_measured_mask(self.grid.raw)
         self._set_freeze_masks(self.grid.box)

@@ -61,3 +61,31 @@ def test_thin_part_gradient_mask_is_masked_fill(training):
     model.thin_parts.view(-1)[:500] = True
     stop = model.thin_parts if training == "frozen" else model.thin_parts & (g > 0)
     assert _same(masked_gradient(model, g), g.masked_fill(stop, 0.0))
+
+
+def test_measured_gradient_mask_is_cast_once_and_follows_a_new_mask():
+    """`fast.freeze_measured`'s mask: the same values as `g * trainable` every step, cast once per mask (not per
+    step), and a new mask (the fine level's, a resumed fit's) used from its first step."""
+    from tests.support.recon_fixtures import box_floor_measurements
+    from tests.torch_recon.recon.test_recon_fit import small_config
+    from tests.torch_recon.recon.test_recon_freeze import _meta
+    from torch_recon.recon.data import build_ray_data
+    from torch_recon.recon.freeze_masks import masked_gradient
+    from torch_recon.recon.models import FastModel
+
+    meas = box_floor_measurements(32)
+    cfg = small_config(steps=1)
+    cfg.fast.freeze_measured = True
+    cfg.fast.freeze_spot_radius_voxels = 0.0
+    cfg.fast.freeze_plane_edges_voxels = 0.0
+    model = FastModel(build_ray_data(meas), cfg, _meta(meas))
+    model.thin_parts = model.frozen_voxels = None                   # this mask alone
+    gen = torch.Generator().manual_seed(5)
+    model.trainable = torch.rand(model.grid.raw.shape, generator=gen) > 0.5
+    g = torch.randn(model.grid.raw.shape, generator=gen)
+    assert _same(masked_gradient(model, g), g * model.trainable.float())
+    cast = model._trainable_cast[1]
+    masked_gradient(model, g)
+    assert model._trainable_cast[1] is cast                         # the cast is kept between steps
+    model.trainable = ~model.trainable                              # a new mask: used at once
+    assert _same(masked_gradient(model, g), g * model.trainable.float())
