@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..contract.analytic import first_hits
-from .objects import ObjectMetricSettings, Surface, sample_count, rest_of_scene, sensor_visible
+from .objects import ObjectMetricSettings, Surface, contact_samples, rest_of_scene, sample_count, sensor_visible
 
 FACE_DIRECTIONS = ("+x", "-x", "+y", "-y", "+z", "-z")
 
@@ -63,11 +63,10 @@ def hidden_miss_causes(gt_mesh, objects, sensor, spots, recon, truth_recon=None,
     for i, (name, m) in enumerate(objects):      # the same samples, seeds and contact rule as evaluate's
         os_ = Surface(m, s.gt_samples_per_object, s.seed + 10 + i)
         rest = rest_of_scene(gt_mesh, objects, i)
-        g, gf = os_.samples, os_.sample_faces
-        if rest is not None:
-            rs = Surface(rest, sample_count(rest.area, s.scene_samples_per_m2, 20_000, 300_000), s.seed + 30 + i)
-            keep = rs.distance(g) >= s.contact_m
-            g, gf = g[keep], gf[keep]
+        rs = (None if rest is None else
+              Surface(rest, sample_count(rest.area, s.scene_samples_per_m2, 20_000, 300_000), s.seed + 30 + i))
+        keep = ~contact_samples(os_, rs, s.contact_m)
+        g, gf = os_.samples[keep], os_.sample_faces[keep]
         nrm = os_.mesh.face_normals[gf]
         hid = ~sensor_visible(g, nrm, gt_mesh, sensor)
         p, n = g[hid], nrm[hid]

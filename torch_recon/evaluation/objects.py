@@ -33,7 +33,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .surface import exact_point_to_mesh_distance, point_to_mesh_distance
+from .surface import exact_point_to_mesh_distance, point_to_mesh_distance, within_distance
 
 
 @dataclass
@@ -75,10 +75,16 @@ class Surface:
         self.mesh = _split_large_triangles(mesh, max_edge_m)
         n = max(int(n_samples), 1)
         self.samples, self.sample_faces = trimesh.sample.sample_surface(self.mesh, n, seed=seed)
+        self._tree = None
 
-    def distance(self, points, return_faces=False):
+    def distance(self, points, return_faces=False, max_m=None):
+        """surface.point_to_mesh_distance (max_m: only distances up to it are needed)."""
+        from scipy.spatial import cKDTree
+        if self._tree is None:          # one k-d tree per surface, not per query
+            self._tree = cKDTree(self.samples)
         return point_to_mesh_distance(np.asarray(points, np.float64).reshape(-1, 3), self.mesh, self.samples,
-                                      self.sample_faces, k=self.k, return_faces=return_faces)
+                                      self.sample_faces, k=self.k, return_faces=return_faces, max_m=max_m,
+                                      tree=self._tree)
 
 
 def _split_large_triangles(mesh, max_edge_m):
@@ -222,10 +228,8 @@ def object_surface_metrics(recon, gt_mesh, objects, sensor=None, settings: Objec
         rest = rest_of_scene(gt_mesh, objects, i)
         rest_surf = Surface(rest, sample_count(rest.area, s.scene_samples_per_m2, 20_000, 300_000),
                             s.seed + 30 + i) if rest is not None else None
-        g_pts, g_faces = os_.samples, os_.sample_faces
-        contact = (rest_surf.distance(g_pts) < s.contact_m) if rest_surf is not None else np.zeros(len(g_pts), bool)
-        contact |= part_contact(os_.mesh, g_pts, g_faces, s.contact_m)
-        g_pts, g_faces = g_pts[~contact], g_faces[~contact]
+        contact = contact_samples(os_, rest_surf, s.contact_m)
+        g_pts, g_faces = os_.samples[~contact], os_.sample_faces[~contact]
         vis = sensor_visible(g_pts, os_.mesh.face_normals[g_faces], gt_mesh, sensor)
         res = {"n_gt_points": int(len(g_pts)), "n_contact_points": int(contact.sum()),
                "visible_share": float(vis.mean()) if len(vis) else None}
@@ -237,7 +241,8 @@ def object_surface_metrics(recon, gt_mesh, objects, sensor=None, settings: Objec
         else:
             d_gr = rec_surf_region.distance(g_pts)
         d_po, f_po = os_.distance(p_pts, return_faces=True) if len(p_pts) else (np.zeros(0), np.zeros(0, int))
-        d_prest = rest_surf.distance(p_pts) if (len(p_pts) and rest_surf is not None) else np.full(len(p_pts), np.inf)
+        d_prest = (_bounded_by(rest_surf, p_pts, d_po) if (len(p_pts) and rest_surf is not None)
+                   else np.full(len(p_pts), np.inf))
         d_pall = d_reg_all[sel]
         mine = (d_po <= d_prest) | (d_pall > s.spurious_m)
         d_mine = d_po[mine]
@@ -260,6 +265,15 @@ def object_surface_metrics(recon, gt_mesh, objects, sensor=None, settings: Objec
     return out
 
 
+def contact_samples(object_surface: Surface, rest_surface: Surface | None, contact_m: float) -> np.ndarray:
+    """bool per sample of `object_surface`: within contact_m of the rest of the scene (`rest_surface`, None: nothing
+    else) or of another of the object's own parts (`part_contact`); such points are not scored."""
+    pts, faces = object_surface.samples, object_surface.sample_faces
+    contact = (rest_surface.distance(pts, max_m=contact_m) < contact_m if rest_surface is not None
+               else np.zeros(len(pts), bool))
+    return contact | part_contact(object_surface.mesh, pts, faces, contact_m)
+
+
 def part_contact(mesh, points, faces, contact_m: float) -> np.ndarray:
     """bool (N,): points (sampled on `faces` of an object's mesh) within contact_m of another of the object's parts
     (connected components: a chair's backrest standing on its seat, a leg under it). The faces where parts meet lie
@@ -274,10 +288,20 @@ def part_contact(mesh, points, faces, contact_m: float) -> np.ndarray:
     for part in np.unique(label):
         on = label[faces] == part
         others = merged.submesh([np.flatnonzero(label != part)], append=True)
-        d = exact_point_to_mesh_distance(points[on], others)
-        if d is None:       # a large object: the candidate-face distance (an upper bound)
-            d = Surface(others, sample_count(others.area, 40_000, 2000, 200_000), 0).distance(points[on])
-        out[on] = d < contact_m
+        out[on] = within_distance(points[on], others, contact_m)
+    return out
+
+
+def _bounded_by(surface, points, bound):
+    """surface.distance(points) where it is <= the per-point `bound`, some value > bound elsewhere (the caller
+    only compares the two): points grouped by bound, each group's search stopped at its largest bound."""
+    out = np.empty(len(points))
+    edges = np.array([0.02, 0.05, 0.1, 0.2, 0.4, 0.8, 1.6])
+    group = np.searchsorted(edges, bound)
+    for g in np.unique(group):
+        sel = group == g
+        top = float(bound[sel].max())
+        out[sel] = surface.distance(points[sel], max_m=top if np.isfinite(top) else None)
     return out
 
 
