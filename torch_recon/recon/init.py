@@ -97,6 +97,25 @@ def _ramp_in_front_of_hidden(data: RayData, box: GridBox, sd: torch.Tensor, labe
     return out
 
 
+def _lit_ramp_seen_through(data: RayData, box: GridBox, sd: torch.Tensor, label: torch.Tensor, margin_m: float,
+                           nearest_free: bool) -> torch.Tensor:
+    """Lit-carved voxels (nx, ny, nz bool) the nearest measured point's plane puts behind the surface (0 < sd, within
+    the half voxel the ramp reaches into carved space) though they lie more than `margin_m` in front of what the pixel
+    nearest them in direction saw (with `nearest_free` its earliest return): that pixel looked past the voxel to a
+    farther surface, so the plane is extended past its object's silhouette (dark-room's backrest, 3 cm beside its
+    side edges) or mixed with a nearer part, and the carving, not the ramp, decides the voxel (session 21). One pixel,
+    not four (`behind_pixels.seen_through`): beside a silhouette one of four sees the object itself."""
+    cand = torch.isfinite(sd) & (sd > 0) & (label == 3)
+    out = torch.zeros_like(cand)
+    if bool(cand.any()):
+        depth = data.visible_depth
+        if nearest_free and data.nearest_depth is not None:
+            depth = torch.fmin(data.nearest_depth, depth)
+        ahead = behind_pixels(data, box.centres()[cand.to(box.bbox_min.device)], k=1, depth=depth, farthest=False)
+        out[cand] = (ahead < -margin_m).to(out.device)
+    return out
+
+
 #: spots whose secondary rays must cross a voxel outside the camera's view for it to count as measured
 MIN_SPOTS_BEYOND_VIEW = 2
 
@@ -239,6 +258,9 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
         if cfg.surface_hidden_hull_voxels > 0:
             near &= ~_ramp_in_front_of_hidden(data, box, sd, label, cfg.surface_hidden_hull_voxels * box.voxel,
                                               (cfg.surface_half_width_voxels + 1.0) * box.voxel)
+        if cfg.surface_seen_through_voxels > 0:
+            near &= ~_lit_ramp_seen_through(data, box, sd, label, cfg.surface_seen_through_voxels * box.voxel,
+                                            cfg.nearest_free)
         raw = torch.where(near, ramp(sd), raw)
     if cfg.thin_part_raw != cfg.raw_occupied:
         raw = torch.where(label == NEAREST, torch.tensor(cfg.thin_part_raw, device=dev), raw)

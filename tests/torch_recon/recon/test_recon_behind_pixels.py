@@ -85,7 +85,31 @@ def test_a_point_the_pixels_saw_through_unless_a_thin_parts_earliest_return_lies
     assert seen_through(data, pts, 0.02, nearest_free=False).tolist() == [True, False, False]
 
 
-@pytest.mark.parametrize("key", ["surface_hidden_hull_voxels", "seen_through_voxels"])
+def test_a_lit_carved_voxel_the_pixels_saw_through_keeps_the_carving_where_a_plane_would_fill_it():
+    """sd > 0 (the nearest measured point's plane puts the voxel behind the surface) on lit-carved voxels: one 2.5
+    voxels in front of the wall its pixels saw (a plane extended past a silhouette, dark-room's backrest fins, session
+    21) keeps its carving; one on the wall, a hull voxel in front of it and a lit-carved voxel the plane puts in front
+    (sd < 0) are left to the ramp."""
+    from torch_recon.recon.init import _lit_ramp_seen_through
+
+    data = _wall_seen()
+    box = GridBox([0.0, 0.5, 0.0], [1.0, 1.5, 1.0], 25)           # 4 cm voxels; the wall at y = 1
+    y = box.centres()[0, :, 0, 1]
+    sd = torch.full(box.shape, float("nan"))
+    label = torch.full(box.shape, 3, dtype=torch.int8)
+    i, k = 12, 12
+    in_front = int(torch.argmin((y - 0.90).abs()))                 # 2.5 voxels in front of the wall
+    on_wall = int(torch.argmin((y - 1.0).abs()))
+    hull, before_plane = in_front - 1, in_front - 2
+    for j, d in ((in_front, 0.01), (on_wall, 0.01), (hull, 0.01), (before_plane, -0.01)):
+        sd[i, j, k] = d
+    label[i, hull, k] = 0
+    for nearest in (True, False):
+        kept = _lit_ramp_seen_through(data, box, sd, label, 0.5 * box.voxel, nearest)
+        assert bool(kept[i, in_front, k]) and int(kept.sum()) == 1
+
+
+@pytest.mark.parametrize("key", ["surface_hidden_hull_voxels", "seen_through_voxels", "surface_seen_through_voxels"])
 def test_pixel_depth_margins_are_range_checked(key):
     from torch_recon.contract.errors import SettingsError
     from torch_recon.recon.config import FitConfig, override
