@@ -25,6 +25,10 @@ Definitions (all distances point-to-triangle, metres; samples area-weighted and 
   to measure the candidates exactly, then an upper bound);
   normal_consistency = mean |n_rec . n_gt| of nearest faces, both directions averaged;
   degenerate_faces = faces of area <= `degenerate_area_m2` (or non-finite vertices).
+Cost: distances come from candidate faces of the nearest surface samples (`surface.point_to_mesh_distance`); where
+only a comparison is needed (contact, which GT surface a sample is nearer to) the search stops at the compared
+distance, and contact between an object's parts is measured exactly against the faces whose bounding spheres reach
+(`surface.within_distance`): the same numbers as unbounded / brute-force queries, 80 -> 16 s on cave-chair (session 21).
 """
 
 from __future__ import annotations
