@@ -59,6 +59,12 @@ class FastConfig:
                                       # foot started at the surface level (cave-chair's two dents; session 18). Its
                                       # hidden-recall cost was the metric scoring the faces where a chair's parts meet;
                                       # with those left out as contact it passes the rule on six scenes: default; 0: off
+    surface_plane_blocker_voxels: float = 0.5  # > 0: a restored shadow blocker whose centre lies within this many
+                                      # voxels of the measured visible surface and of a plane bounding the room (a wall
+                                      # voxel a grazing shadowed segment picked: the chair's legs' shadows on the side
+                                      # walls) keeps the surface's ramp, not the occupied value, which put the wall half
+                                      # a voxel into the room (cave-chair's ridges, session 21, docs/reconstruction.md);
+                                      # 0: off
     seen_through_voxels: float = 0.5  # > 0: a restored shadow blocker lying more than this (voxels) in front of the
                                       # nearest return (earliest returns included) of each of its four nearest pixels
                                       # is dropped (lit-carved again): the sensor saw through it though no pixel ray's

@@ -97,6 +97,17 @@ def _ramp_in_front_of_hidden(data: RayData, box: GridBox, sd: torch.Tensor, labe
     return out
 
 
+def _blocker_on_measured_plane(box: GridBox, sd: torch.Tensor, shell, band_voxels: float) -> torch.Tensor:
+    """Voxels (nx, ny, nz) bool within `band_voxels` of both the measured visible surface (`sd`) and a plane bounding
+    the room (`shell`; none without planes): a restored blocker there is a wall voxel a grazing shadowed segment
+    picked (the true blocker, a leg a metre away, was carved), and the wall's measured ramp places it; occupied,
+    it put the wall half a voxel into the room (cave-chair's ridges beside the chair, session 21)."""
+    if band_voxels <= 0 or shell is None:
+        return torch.zeros_like(sd, dtype=torch.bool)
+    band = band_voxels * box.voxel
+    return (sd.abs() <= band) & (shell.abs() <= band)
+
+
 #: spots whose secondary rays must cross a voxel outside the camera's view for it to count as measured
 MIN_SPOTS_BEYOND_VIEW = 2
 
@@ -235,7 +246,8 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
         # a voxel the sensor saw through lies in front of every measured surface: a face's plane, extended past
         # the object's silhouette, must not fill it (at 512 px it fattened resolved legs and chair backs)
         near = (torch.isfinite(sd) & ((label != 3) | (sd <= 0.5 * box.voxel)) & ((label != 2) | (sd <= 0))
-                & (label != RESTORED) & (label != NEAREST))
+                & ((label != RESTORED) | _blocker_on_measured_plane(box, sd, shell, cfg.surface_plane_blocker_voxels))
+                & (label != NEAREST))
         if cfg.surface_hidden_hull_voxels > 0:
             near &= ~_ramp_in_front_of_hidden(data, box, sd, label, cfg.surface_hidden_hull_voxels * box.voxel,
                                               (cfg.surface_half_width_voxels + 1.0) * box.voxel)
