@@ -59,6 +59,15 @@ class FastConfig:
                                       # foot started at the surface level (cave-chair's two dents; session 18). Its
                                       # hidden-recall cost was the metric scoring the faces where a chair's parts meet;
                                       # with those left out as contact it passes the rule on six scenes: default; 0: off
+    explain_in_plane_voxels: float = 0.5  # > 0: a shadowed pair whose spot lies within this many voxels of its pixel's
+                                      # tangent plane (a spot on the same wall: light at grazing incidence returns
+                                      # nothing, no occluder) is no shadow evidence: the start field (and the spot
+                                      # advisor's labels) neither count nor explain it, training leaves it out. Cave-chair:
+                                      # 46k of 55k shadowed pairs; their blockers lay on the walls next to the spots
+                                      # (the side walls' ridges; restored 392 -> 348, on the walls 38 -> 4). Session 21,
+                                      # six scenes (with surface_plane_blocker_voxels): dark-room F@2cm / hidden R 0.931 /
+                                      # 0.891 -> 0.938 / 0.909 (the chair's front leg), others within 0.002 / 0.2 point
+                                      # (docs/reconstruction.md "Restored blockers on the room's walls"); 0: off
     surface_plane_blocker_voxels: float = 0.5  # > 0: a restored shadow blocker whose centre lies within this many
                                       # voxels of the measured visible surface and of a plane bounding the room (a wall
                                       # voxel a grazing shadowed segment picked: the chair's legs' shadows on the side

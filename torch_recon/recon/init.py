@@ -194,7 +194,7 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     measured = objects_measured_points(data, box, cfg, surface, planes)
     evidence, shadow_count = configured_evidence_grid(data, box, cfg, secondary_offset_m, seen_free,
                                                       count_shadow=cfg.trim_hull_voxels > 0, thin_points=thin_points,
-                                                      measured_points=measured)
+                                                      measured_points=measured, surface=surface)
     label = evidence.label
     free = (label == 2) | (label == 3)
     dev = data.pixel_dirs.device

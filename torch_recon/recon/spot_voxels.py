@@ -45,7 +45,8 @@ def voxel_classes(data, box: GridBox, opacity, level, fast: dict, meta: dict, of
     seen = coarse_sensor_seen_free(data, box, cfg, meta)
     surface = visible_surface(data, box) if surface is None else surface
     measured = objects_measured_points(data, box, cfg, surface)
-    label = configured_evidence_grid(data, box, cfg, offset_m, seen_free=seen, measured_points=measured)[0].label
+    label = configured_evidence_grid(data, box, cfg, offset_m, seen_free=seen, measured_points=measured,
+                                     surface=surface)[0].label
     view = in_view(data, box, meta["camera_to_world"], meta["fov_rad"], meta["fov_axis"])
     occupied = torch.as_tensor(opacity >= level, device=label.device)
     cls = torch.full(box.shape, FREE, dtype=torch.int8, device=label.device)
