@@ -172,7 +172,9 @@ class FitConfig:
                                            ("mesh_level_shift_voxels", -0.5, 0.5, "voxels", " (0: off)"),
                                            ("surface_hidden_hull_voxels", 0, 4, "voxels", " (0: off)"),
                                            ("seen_through_voxels", 0, 4, "voxels", " (0: off)"),
-                                           ("surface_seen_through_voxels", 0, 4, "voxels", " (0: off)"),):
+                                           ("surface_seen_through_voxels", 0, 4, "voxels", " (0: off)"),
+                                           ("surface_plane_blocker_voxels", 0, 2, "voxels", " (0: off)"),
+                                           ("explain_in_plane_voxels", 0, 2, "voxels", " (0: off)"),):
             value = getattr(self.fast, key)
             if not low <= value <= high:     # NaN fails too
                 raise SettingsError(f"fast.{key}", f"expected {unit} in [{low}, {high}]{note}, got {value}")

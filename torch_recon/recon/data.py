@@ -174,6 +174,13 @@ def lit_path_tolerance(data: RayData, voxel: float, tolerance_voxels: float) -> 
     return max(tolerance_voxels * voxel, 0.5 * (data.bin_width_m or 0.0))
 
 
+def without_shadowed(data: RayData, pairs: torch.Tensor) -> RayData:
+    """A copy of `data` (tensors shared except shadowed) in which `pairs` (bool (N,)) are not shadowed: the shadow
+    loss skips them (a spot in the pixel's own plane: `voxel_evidence.in_plane_pairs`)."""
+    import dataclasses
+    return dataclasses.replace(data, shadowed=data.shadowed & ~pairs.to(data.shadowed.device))
+
+
 def without_lit(data: RayData, pairs: torch.Tensor) -> RayData:
     """A copy of `data` (tensors shared except lit / path) in which `pairs` (bool (N,)) are neither lit nor
     shadowed: the losses skip them."""

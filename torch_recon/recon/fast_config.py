@@ -69,6 +69,21 @@ class FastConfig:
                                       # (at 1: also 187 on the walls' grazing views). Six scenes: dark-room objects'
                                       # region 6.5 -> 5.4 %, F@2cm 0.931 -> 0.937, curved-wall 5.1 -> 4.7 %, hidden R at
                                       # most -0.002 (outside-fov): default; 0: off
+    explain_in_plane_voxels: float = 0.5  # > 0: a shadowed pair whose spot lies within this many voxels of its pixel's
+                                      # tangent plane (a spot on the same wall: light at grazing incidence returns
+                                      # nothing, no occluder) is no shadow evidence: the start field (and the spot
+                                      # advisor's labels) neither count nor explain it, training leaves it out. Cave-chair:
+                                      # 46k of 55k shadowed pairs; their blockers lay on the walls next to the spots
+                                      # (the side walls' ridges; restored 392 -> 348, on the walls 38 -> 4). Session 21,
+                                      # six scenes (with surface_plane_blocker_voxels): dark-room F@2cm / hidden R 0.931 /
+                                      # 0.891 -> 0.938 / 0.909 (the chair's front leg), others within 0.002 / 0.2 point
+                                      # (docs/reconstruction.md "Restored blockers on the room's walls"); 0: off
+    surface_plane_blocker_voxels: float = 0.5  # > 0: a restored shadow blocker whose centre lies within this many
+                                      # voxels of the measured visible surface and of a plane bounding the room (a wall
+                                      # voxel a grazing shadowed segment picked: the chair's legs' shadows on the side
+                                      # walls) keeps the surface's ramp, not the occupied value, which put the wall half
+                                      # a voxel into the room (cave-chair's ridges, session 21, docs/reconstruction.md);
+                                      # 0: off
     seen_through_voxels: float = 0.5  # > 0: a restored shadow blocker lying more than this (voxels) in front of the
                                       # nearest return (earliest returns included) of each of its four nearest pixels
                                       # is dropped (lit-carved again): the sensor saw through it though no pixel ray's

@@ -23,7 +23,8 @@ from .fields import DensityGrid, GridBox, dilate_cube
 from .segment_crossings import pair_segments, spot_crossings
 from .thin_parts import thin_part_signed_distance
 from .visible_surface_init import surface_offset, surface_signed_distance, visible_surface
-from .voxel_evidence import NEAREST, RESTORED, carving_pixel_mask, configured_evidence_grid
+from .voxel_evidence import (CAMERA_FREE, HULL, LIT_FREE, NEAREST, RESTORED, SURFACE, carving_pixel_mask,
+                             configured_evidence_grid)
 
 
 def scene_bbox(data: RayData, margin_m: float, quantile: float = 0.001):
@@ -58,8 +59,8 @@ def _hull_prior(data: RayData, box: GridBox, cfg, label, free, view, sd, shell, 
     places, per connected part), every measured shadow staying blocked (hull_trim.py)."""
     from .hull_trim import keep_blocked, opening, outside_convex_closure, sole_blockers
     solid = ~free
-    band = torch.isfinite(sd) if sd is not None else dilate_cube((label == 1).float(), 2) > 0
-    removable = (label == 0) & solid & ~band & (shell < -0.5 * box.voxel)
+    band = torch.isfinite(sd) if sd is not None else dilate_cube((label == SURFACE).float(), 2) > 0
+    removable = (label == HULL) & solid & ~band & (shell < -0.5 * box.voxel)
     removable = removable if view is None else removable & view
     on_sub = carving_pixel_mask(data, box, cfg.carve_spacing_voxels)
     segs = pair_segments(data, data.shadowed & on_sub[data.pair_pixel], off)
@@ -70,7 +71,7 @@ def _hull_prior(data: RayData, box: GridBox, cfg, label, free, view, sd, shell, 
     if cfg.hull_closure == "convex":
         parts = solid & (shell < -1.5 * box.voxel)    # not the floor or a wall under an object
         parts = parts if view is None else parts & view
-        placed = (label == 1) | (label == RESTORED) | (label == NEAREST)     # a measured surface or blocker
+        placed = (label == SURFACE) | (label == RESTORED) | (label == NEAREST)     # a measured surface or blocker
         anchors = (parts & placed) | (sole_blockers(box, solid.reshape(-1), segs, step,
                                                         min_segments=cfg.hull_closure_min_segments,
                                                         max_samples=cfg.hull_closure_graze_samples).reshape(solid.shape)
@@ -89,7 +90,7 @@ def _ramp_in_front_of_hidden(data: RayData, box: GridBox, sd: torch.Tensor, labe
     they lie more than `margin_m` behind the surface their own pixels saw, and within `reach_m` of it (the ramp's
     surface, not a wall far behind an object): the plane is another face's (a concave junction's points carry the
     seat's normal at its backrest's foot), and the hull, not that ramp, decides them."""
-    cand = torch.isfinite(sd) & (sd < 0) & (label == 0)
+    cand = torch.isfinite(sd) & (sd < 0) & (label == HULL)
     out = torch.zeros_like(cand)
     if bool(cand.any()):
         behind = behind_pixels(data, box.centres()[cand.to(box.bbox_min.device)])
@@ -105,7 +106,7 @@ def _lit_ramp_seen_through(data: RayData, box: GridBox, sd: torch.Tensor, label:
     farther surface, so the plane is extended past its object's silhouette (dark-room's backrest, 3 cm beside its
     side edges) or mixed with a nearer part, and the carving, not the ramp, decides the voxel (session 21). One pixel,
     not four (`behind_pixels.seen_through`): beside a silhouette one of four sees the object itself."""
-    cand = torch.isfinite(sd) & (sd > 0) & (label == 3)
+    cand = torch.isfinite(sd) & (sd > 0) & (label == LIT_FREE)
     out = torch.zeros_like(cand)
     if bool(cand.any()):
         depth = data.visible_depth
@@ -114,6 +115,17 @@ def _lit_ramp_seen_through(data: RayData, box: GridBox, sd: torch.Tensor, label:
         ahead = behind_pixels(data, box.centres()[cand.to(box.bbox_min.device)], k=1, depth=depth, farthest=False)
         out[cand] = (ahead < -margin_m).to(out.device)
     return out
+
+
+def _blocker_on_measured_plane(box: GridBox, sd: torch.Tensor, shell, band_voxels: float) -> torch.Tensor:
+    """Voxels (nx, ny, nz) bool within `band_voxels` of both the measured visible surface (`sd`) and a plane bounding
+    the room (`shell`; none without planes): a restored blocker there is a wall voxel a grazing shadowed segment
+    picked (the true blocker, a leg a metre away, was carved), and the wall's measured ramp places it; occupied,
+    it put the wall half a voxel into the room (cave-chair's ridges beside the chair, session 21)."""
+    if band_voxels <= 0 or shell is None:
+        return torch.zeros_like(sd, dtype=torch.bool)
+    band = band_voxels * box.voxel
+    return (sd.abs() <= band) & (shell.abs() <= band)
 
 
 #: spots whose secondary rays must cross a voxel outside the camera's view for it to count as measured
@@ -202,9 +214,9 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     measured = objects_measured_points(data, box, cfg, surface, planes)
     evidence, shadow_count = configured_evidence_grid(data, box, cfg, secondary_offset_m, seen_free,
                                                       count_shadow=cfg.trim_hull_voxels > 0, thin_points=thin_points,
-                                                      measured_points=measured)
+                                                      measured_points=measured, surface=surface)
     label = evidence.label
-    free = (label == 2) | (label == 3)
+    free = (label == CAMERA_FREE) | (label == LIT_FREE)
     dev = data.pixel_dirs.device
     corners = cfg.surface_concave_corners
     sd = (surface_signed_distance(data, box, cfg.surface_half_width_voxels, surface=surface,
@@ -218,8 +230,8 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     trimmed = None
     if cfg.trim_hull_voxels > 0:
         from .hull_trim import unneeded_hull
-        band = torch.isfinite(sd) if sd is not None else dilate_cube((label == 1).float(), 2) > 0
-        hull = (label == 0) & (shell < -0.5 * box.voxel)     # never through a wall, floor or ceiling plane
+        band = torch.isfinite(sd) if sd is not None else dilate_cube((label == SURFACE).float(), 2) > 0
+        hull = (label == HULL) & (shell < -0.5 * box.voxel)     # never through a wall, floor or ceiling plane
         hull = hull if view is None else hull & view
         trimmed = unneeded_hull(free, hull, shadow_count, band, cfg.trim_hull_voxels)
         free = free | trimmed
@@ -253,8 +265,9 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     if sd is not None:
         # a voxel the sensor saw through lies in front of every measured surface: a face's plane, extended past
         # the object's silhouette, must not fill it (at 512 px it fattened resolved legs and chair backs)
-        near = (torch.isfinite(sd) & ((label != 3) | (sd <= 0.5 * box.voxel)) & ((label != 2) | (sd <= 0))
-                & (label != RESTORED) & (label != NEAREST))
+        near = (torch.isfinite(sd) & ((label != LIT_FREE) | (sd <= 0.5 * box.voxel)) & ((label != CAMERA_FREE) | (sd <= 0))
+                & ((label != RESTORED) | _blocker_on_measured_plane(box, sd, shell, cfg.surface_plane_blocker_voxels))
+                & (label != NEAREST))
         if cfg.surface_hidden_hull_voxels > 0:
             near &= ~_ramp_in_front_of_hidden(data, box, sd, label, cfg.surface_hidden_hull_voxels * box.voxel,
                                               (cfg.surface_half_width_voxels + 1.0) * box.voxel)

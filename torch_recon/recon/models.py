@@ -17,7 +17,7 @@ import torch.nn.functional as F
 from ..mesh_export import InwardSmoothing
 from .adam import GridAdam
 from .config import FitConfig
-from .data import RayData, lit_path_tolerance, unexplained_lit, without_lit
+from .data import RayData, lit_path_tolerance, unexplained_lit, without_lit, without_shadowed
 from .fields import DensityGrid, GridBox, dilate_cube
 from .hull_subvoxel import SHRINK_ITERATIONS, binary_boundary_inset, shrinkable_hull
 from .freeze_masks import frozen_voxels, masked_gradient, masks_gradient, measured_trainable, thin_part_mask
@@ -30,6 +30,7 @@ from .smoothness import NormalConsistencyPrior
 from .thin_parts import thin_part_cloud
 from .visible_surface_init import (coarse_sensor_seen_free, in_front_of_visible_surface, seen_depth,
                                    seen_free_points, surface_offset, visible_surface)
+from .voxel_evidence import in_plane_pairs
 
 
 class FastModel(ReconstructionModel):
@@ -53,6 +54,9 @@ class FastModel(ReconstructionModel):
         voxel = float(torch.as_tensor(self.bbox[1] - self.bbox[0]).max()) / self.fc.resolution
         tol = lit_path_tolerance(data, voxel, self.fc.lit_path_tolerance_voxels)
         self._training_data = without_lit(data, unexplained_lit(data, tol)) if tol > 0 else data
+        if self.fc.explain_in_plane_voxels > 0:    # a spot in the pixel's own plane: no shadow evidence (voxel_evidence)
+            plane = in_plane_pairs(data, self.visible_surface(self.grid.box), self.fc.explain_in_plane_voxels * voxel)
+            self._training_data = without_shadowed(self._training_data, plane)
         self._hook = None
         self._thin_index = None     # (thin_parts, their flat indices) for the gradient mask
         self._trainable_cast = None     # (trainable, the same mask as the gradient's dtype): cast once

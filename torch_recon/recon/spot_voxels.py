@@ -18,7 +18,7 @@ from .init import in_view, objects_measured_points
 from .segment_crossings import marching_cells
 from .spot_geometry import back_facing_free
 from .visible_surface_init import coarse_sensor_seen_free, visible_surface
-from .voxel_evidence import configured_evidence_grid
+from .voxel_evidence import HULL as UNCARVED, SURFACE, configured_evidence_grid
 
 #: voxel classes along a segment (FACE: a hidden back face next to a measured surface, see voxel_classes)
 FREE, HULL, SOLID, FACE = 0, 1, 2, 3
@@ -45,15 +45,16 @@ def voxel_classes(data, box: GridBox, opacity, level, fast: dict, meta: dict, of
     seen = coarse_sensor_seen_free(data, box, cfg, meta)
     surface = visible_surface(data, box) if surface is None else surface
     measured = objects_measured_points(data, box, cfg, surface)
-    label = configured_evidence_grid(data, box, cfg, offset_m, seen_free=seen, measured_points=measured)[0].label
+    label = configured_evidence_grid(data, box, cfg, offset_m, seen_free=seen, measured_points=measured,
+                                     surface=surface)[0].label
     view = in_view(data, box, meta["camera_to_world"], meta["fov_rad"], meta["fov_axis"])
     occupied = torch.as_tensor(opacity >= level, device=label.device)
     cls = torch.full(box.shape, FREE, dtype=torch.int8, device=label.device)
     cls[occupied] = SOLID
     # hidden voxels next to a measured surface are the surface's own thickness (a wall seen at a grazing angle
     # has voxels no pixel's point lands in): solid, not unbounded space
-    band = dilate_cube((label == 1).float(), SURFACE_BAND_VOXELS) > 0
-    hidden = occupied & (label == 0) & view
+    band = dilate_cube((label == SURFACE).float(), SURFACE_BAND_VOXELS) > 0
+    hidden = occupied & (label == UNCARVED) & view
     cls[hidden & ~band] = HULL
     if back_faces:  # ... but where such a voxel bounds free space on its side away from the sensor it is the back
         # face of a part (a table top's underside, a box's far side): only light grazing it places that face

@@ -26,6 +26,9 @@ from .segment_crossings import accumulate_crossings, marching_cells, pair_segmen
 from .shadow_blockers import MeasuredSurfacePoints, blocker_weight, shared_blockers
 from .thin_parts import thin_part_cloud, thin_part_voxels
 
+#: evidence labels of a voxel (`evidence_grid`): never carved (the shadow hull decides), holding a measured visible
+#: surface point, seen through by the sensor, crossed by a lit secondary ray
+HULL, SURFACE, CAMERA_FREE, LIT_FREE = 0, 1, 2, 3
 #: evidence label of a carved voxel put back because a shadowed segment needs a blocker there
 RESTORED = 4
 #: evidence label of the nearest surface of a pixel whose strongest return lies behind (a part under a pixel wide)
@@ -132,7 +135,7 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
                   thin_part_centre: str = "off", explain_lead_voxels: float = 0.0, thin_points=None,
                   lit_path_tolerance_m: float = 0.0, explain_neighbour_power: float = 0.0,
                   explain_shared_cluster_voxels: int = 0, explain_measured_scale_voxels: float = 0.0,
-                  measured_points=None):
+                  measured_points=None, in_plane=None):
     """`VoxelEvidence`: per-voxel labels (nx, ny, nz) int8: 1 surface, 2 camera-free, 3 lit-free, 0 hidden, 4 restored
     blocker of a shadowed segment (with `explain_shadow_rays`), 6 a part under a pixel wide (with
     `nearest_surface`: `thin_part_points`), and the voxels lit segments cross; and the count of shadowed secondary
@@ -146,7 +149,9 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     explain_shared_cluster_voxels > 0: blockers in clusters at least this large are shared (`shared_blockers`).
     explain_measured_scale_voxels > 0: a restored blocker is looked for where the segment passes nearest to the measured
     surface points, visible and thin parts' (`MeasuredSurfacePoints`, this scale in voxels); measured_points (N, 3):
-    the visible points to use (the start field leaves out the room's bounding planes), else every pixel's."""
+    the visible points to use (the start field leaves out the room's bounding planes), else every pixel's.
+    in_plane: bool (N pairs,): shadowed pairs whose spot lies in their pixel's tangent plane (`in_plane_pairs`), no
+    shadow evidence (neither counted nor explained)."""
     dev = data.pixel_dirs.device
     n = int(np.prod(box.shape))
     step = step_voxels * box.voxel
@@ -186,19 +191,20 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     off = max(secondary_offset_m, surface_margin_voxels * box.voxel)
     own = unexplained_lit(data, lit_path_tolerance_m) if lit_path_tolerance_m > 0 else None
     lit_count = segment_counts(data, box, data.lit & on_sub[data.pair_pixel], off, step, carve_core, own)
-    consistent = explain_shadow_rays and bool(data.shadowed.any())
-    shadow_count = (segment_counts(data, box, data.shadowed & on_sub[data.pair_pixel], off, step, 0.5)
+    shadowed = data.shadowed if in_plane is None else data.shadowed & ~in_plane.to(data.shadowed.device)
+    consistent = explain_shadow_rays and bool(shadowed.any())
+    shadow_count = (segment_counts(data, box, shadowed & on_sub[data.pair_pixel], off, step, 0.5)
                     if count_shadow or consistent else torch.zeros_like(lit_count))
-    label = torch.zeros(n, dtype=torch.int8, device=dev)
-    label[lit_count >= max(1, carve_min_lit)] = 3
-    label[cam_free > 0] = 2
-    label[surface > 0] = 1
+    label = torch.full((n,), HULL, dtype=torch.int8, device=dev)
+    label[lit_count >= max(1, carve_min_lit)] = LIT_FREE
+    label[cam_free > 0] = CAMERA_FREE
+    label[surface > 0] = SURFACE
     label[nearest & (surface == 0)] = NEAREST
     if consistent:
-        seg = pair_segments(data, data.shadowed & on_sub[data.pair_pixel], off)
+        seg = pair_segments(data, shadowed & on_sub[data.pair_pixel], off)
         score = None
         if explain_score == "spots":    # distinct spots whose shadows cross a voxel, over distinct lit spots
-            sh = data.shadowed & on_sub[data.pair_pixel]
+            sh = shadowed & on_sub[data.pair_pixel]
             score = (spot_crossings(data, box, sh, off, step).float()
                      / (spot_crossings(data, box, data.lit & on_sub[data.pair_pixel], off, step, carve_core) + 1.0))
         lead = explain_lead_voxels * box.voxel
@@ -218,10 +224,25 @@ def evidence_grid(data: RayData, box: GridBox, surface_margin_voxels: float = 1.
     return VoxelEvidence(label.reshape(box.shape), (lit_count > 0).reshape(box.shape)), shadow_count.reshape(box.shape)
 
 
+def in_plane_pairs(data: RayData, surface, tol_m: float) -> torch.Tensor:
+    """Pairs (bool (N,)) whose spot lies within `tol_m` of their pixel's tangent plane (surface: `visible_surface`
+    points and normals of the finite-depth pixels, in pixel order): light from a spot on the same wall or floor
+    arrives at grazing incidence and returns nothing, a shadow no occluder casts."""
+    ok = torch.isfinite(data.visible_depth).cpu()
+    nrm = torch.full((len(ok), 3), float("nan"), dtype=torch.float64)
+    nrm[ok] = torch.as_tensor(np.asarray(surface[1]), dtype=torch.float64)
+    x = torch.full((len(ok), 3), float("nan"), dtype=torch.float64)
+    x[ok] = torch.as_tensor(np.asarray(surface[0]), dtype=torch.float64)
+    pp, ps = data.pair_pixel.cpu(), data.pair_spot.cpu()
+    off_plane = ((data.spot_points.cpu().double()[ps] - x[pp]) * nrm[pp]).sum(-1).abs()
+    return torch.nan_to_num(off_plane, nan=float("inf")) <= tol_m
+
+
 def configured_evidence_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float, seen_free=None,
-                             count_shadow: bool = False, thin_points=None, measured_points=None):
+                             count_shadow: bool = False, thin_points=None, measured_points=None, surface=None):
     """`evidence_grid` with a FastConfig's settings: the one place that maps the settings onto its arguments
-    (the start field and the spot advisor both label voxels this way). With `fast.seen_through_voxels` a restored
+    (the start field and the spot advisor both label voxels this way; surface: `visible_surface`, for
+    `fast.explain_in_plane_voxels`). With `fast.seen_through_voxels` a restored
     blocker the sensor saw through (`behind_pixels.seen_through`) is no shadow's blocker: lit-free as before."""
     evidence, shadow_count = evidence_grid(
         data, box, cfg.surface_margin_voxels, cfg.carve_min_lit, secondary_offset_m, cfg.step_voxels, cfg.carve_core,
@@ -233,7 +254,9 @@ def configured_evidence_grid(data: RayData, box: GridBox, cfg, secondary_offset_
         lit_path_tolerance_m=lit_path_tolerance(data, box.voxel, cfg.lit_path_tolerance_voxels),
         explain_neighbour_power=cfg.explain_neighbour_power,
         explain_shared_cluster_voxels=cfg.explain_shared_cluster_voxels,
-        explain_measured_scale_voxels=cfg.explain_measured_scale_voxels, measured_points=measured_points)
+        explain_measured_scale_voxels=cfg.explain_measured_scale_voxels, measured_points=measured_points,
+        in_plane=(in_plane_pairs(data, surface, cfg.explain_in_plane_voxels * box.voxel)
+                  if cfg.explain_in_plane_voxels > 0 and surface is not None else None))
     label = evidence.label
     if cfg.seen_through_voxels > 0:
         restored = label == RESTORED

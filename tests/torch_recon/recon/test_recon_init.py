@@ -121,3 +121,81 @@ def test_explain_lead_refuses_a_negative_distance():
 
     with pytest.raises(SettingsError, match=r"fast\.explain_lead_voxels"):
         override(FitConfig(), ["fast.explain_lead_voxels=-1"])
+
+
+def test_a_blocker_restored_on_a_measured_room_plane_keeps_the_planes_ramp(monkeypatch):
+    """Session 21: on cave-chair a grazing shadowed segment (a chair leg's shadow on a side wall; the leg, a metre
+    away, carved) took a wall voxel as its blocker; occupied, it put the wall half a voxel into the room (+8 mm
+    ridges). A restored voxel straddling the measured floor keeps the floor's ramp (the floor stays where it was
+    measured); one a voxel above the floor (in the ramp, off the plane: a leg's foot) stays occupied."""
+    from tests.support.recon_fixtures import box_floor_measurements
+    from tests.torch_recon.recon.test_recon_fit import small_config
+    from torch_recon.recon import init
+    from torch_recon.recon.config import override
+    from torch_recon.recon.data import build_ray_data
+    from torch_recon.recon.visible_surface_init import surface_offset
+
+    meas = box_floor_measurements(32)
+    data = build_ray_data(meas)
+    cfg = small_config(steps=0)
+    box = GridBox(*init.grid_bbox(data, cfg.fast.resolution, cfg.fast.bbox_margin_voxels), cfg.fast.resolution)
+    view = init.in_view(data, box, np.asarray(meas.camera_to_world), meas.fov_rad, meas.fov_axis)
+    c = box.centres()
+    i, j = int(torch.argmin((c[:, 0, 0, 0] + 0.8).abs())), int(torch.argmin((c[0, :, 0, 1] - 1.2).abs()))
+    k = int(torch.argmin(c[0, 0, :, 2].abs()))              # the voxel straddling the floor (z = 0), beside the box
+    real = init.configured_evidence_grid
+
+    def with_blockers(*args, **kw):                          # two carved voxels a shadowed segment took back
+        evidence, shadow_count = real(*args, **kw)
+        evidence.label[i, j, k] = evidence.label[i, j, k + 1] = RESTORED
+        return evidence, shadow_count
+
+    monkeypatch.setattr(init, "configured_evidence_grid", with_blockers)
+    fc = cfg.fast
+    floor_ramp = fc.surface_slope * float(-c[i, j, k, 2]) / box.voxel + surface_offset(fc.density_scale, box.voxel,
+                                                                                         fc.surface_slope)
+    raw = init.initial_grid(data, box, fc, 0.0, view)[0].raw_xyz().detach()
+    assert abs(float(raw[i, j, k]) - floor_ramp) < 0.01 * fc.surface_slope     # to a hundredth of a voxel
+    assert float(raw[i, j, k + 1]) == fc.raw_occupied
+    old = override(cfg, ["fast.surface_plane_blocker_voxels=0"]).fast
+    assert float(init.initial_grid(data, box, old, 0.0, view)[0].raw_xyz().detach()[i, j, k]) == old.raw_occupied
+
+
+def test_surface_plane_blocker_band_refuses_a_bad_value():
+    from torch_recon.contract.errors import SettingsError
+    from torch_recon.recon.config import FitConfig, override
+
+    for bad in ("-0.5", "3", "nan"):
+        with pytest.raises(SettingsError, match=r"fast\.surface_plane_blocker_voxels"):
+            override(FitConfig(), [f"fast.surface_plane_blocker_voxels={bad}"])
+
+
+def test_a_shadowed_pair_whose_spot_lies_on_its_pixels_wall_is_in_plane():
+    """The bay's spots lie on its side walls: a side-wall pixel and a spot on the same wall are in one plane (light at
+    grazing incidence, no return, no occluder: `fast.explain_in_plane_voxels`); floor pixels and the other wall's
+    spots are not."""
+    from tests.support.recon_fixtures import SIDE_X, box_floor_measurements
+    from torch_recon.recon.data import build_ray_data
+    from torch_recon.recon.init import grid_bbox
+    from torch_recon.recon.visible_surface_init import visible_surface
+    from torch_recon.recon.voxel_evidence import in_plane_pairs
+
+    data = build_ray_data(box_floor_measurements(32))
+    box = GridBox(*grid_bbox(data, 40, 1.5), 40)
+    flagged = in_plane_pairs(data, visible_surface(data, box), 0.5 * box.voxel)
+    x = data.sensor_origin + data.pixel_dirs * data.visible_depth[:, None]
+    px, spot = x[data.pair_pixel].double(), data.spot_points[data.pair_spot].double()
+    same_wall = ((px[:, 0].abs() - SIDE_X).abs() < 0.01) & (torch.sign(px[:, 0]) == torch.sign(spot[:, 0]))
+    assert int(flagged.sum()) > 100 and bool(data.shadowed[flagged].float().mean() > 0.95)
+    assert bool(((px[flagged, 0] - spot[flagged, 0]).abs() < box.voxel).all())     # (a corner pixel: the wall's normal)
+    assert float(same_wall[~flagged].float().mean()) < 0.05
+    # with the setting on, training leaves them out too (neither lit nor shadowed: the losses skip them)
+    from tests.torch_recon.recon.test_recon_fit import small_config
+    from torch_recon.recon.config import override
+    from torch_recon.recon.models import FastModel
+
+    meas = box_floor_measurements(32)
+    meta = {"camera_to_world": np.asarray(meas.camera_to_world), "fov_rad": meas.fov_rad, "fov_axis": meas.fov_axis}
+    model = FastModel(data, override(small_config(steps=0), ["fast.explain_in_plane_voxels=0.5"]), meta)
+    train = model.training_data(data)
+    assert not bool(train.shadowed[flagged].any()) and torch.equal(train.shadowed[~flagged], data.shadowed[~flagged])
