@@ -64,23 +64,51 @@ def frozen_voxels(model, box):
     if fc.freeze_spot_radius_voxels > 0 and len(data.spot_points):
         near = box.near_points(data.spot_points, fc.freeze_spot_radius_voxels * box.voxel).cpu()
     if fc.freeze_plane_edges_voxels > 0:
-        near |= plane_edge_voxels(box, model.room_planes(box), model.visible_surface(box)[0],
-                                  fc.freeze_plane_edges_voxels * box.voxel)
+        points, normals = model.visible_surface(box)
+        near |= plane_edge_voxels(box, model.room_planes(box), points, fc.freeze_plane_edges_voxels * box.voxel,
+                                  normals)
     if not near.any():
         return None
     return torch.nonzero(near.permute(2, 1, 0).reshape(-1)).reshape(-1).to(model.device)
 
 
-def plane_edge_voxels(box, planes: list, points, radius_m: float) -> torch.Tensor:
+#: a measured point is one of a plane's own (an edge's side) within half a voxel of it and with its image normal within
+#: this many degrees of the plane's: a curved wall's RANSAC facets (planes 11-30 degrees apart) pass through the wall
+#: beyond their own patches, where the wall's normal is another facet's (session 21)
+EDGE_SIDE_NORMAL_DEG = 10.0
+#: ... and within this many freeze radii of the edge voxel
+EDGE_SIDE_REACH = 2.0
+
+
+def plane_edge_voxels(box, planes: list, points, radius_m: float, normals=None) -> torch.Tensor:
     """bool (nx, ny, nz): voxels whose centre lies within `radius_m` of two non-parallel `planes`
-    (`unobserved.Plane`: a concave edge of the room) and of one of the measured `points` (N, 3): the edge is
-    seen there."""
+    (`unobserved.Plane`: a concave edge of the room) and of the measured `points` (N, 3): the edge is seen there.
+    With `normals` (N, 3, the points' image normals) the edge needs points of each of its two planes within
+    radius_m (`EDGE_SIDE_NORMAL_DEG`): without that, the lines where a curved wall's facet planes cross the wall
+    counted as edges, and their frozen voxels kept the start field's bumps in vertical rows (curved-wall, session 21)."""
     from scipy.spatial import cKDTree
     out = torch.zeros(box.shape, dtype=torch.bool)
     if len(planes) < 2 or len(points) == 0:
         return out
+    points = np.asarray(points, np.float64)
     c = box.centres().double().cpu().numpy().reshape(-1, 3)
     near = np.stack([np.abs(p.signed_distance(c)) <= radius_m for p in planes])     # (P, V)
+    own = []
+    if normals is not None:
+        cos_side = np.cos(np.radians(EDGE_SIDE_NORMAL_DEG))
+        n = np.asarray(normals, np.float64)
+        own = [points[(np.abs(p.signed_distance(points)) <= 0.5 * float(box.voxel)) & (n @ p.normal >= cos_side)]
+               for p in planes]
+    trees = {}
+
+    def within(k, idx, r):      # voxels idx with a point of plane k (k None: any measured point) within r
+        pts = points if k is None else own[k]
+        if len(pts) == 0:
+            return np.zeros(len(idx), bool)
+        if k not in trees:
+            trees[k] = cKDTree(pts)
+        return np.isfinite(trees[k].query(c[idx], distance_upper_bound=r)[0])
+
     edge = np.zeros(len(c), bool)
     for i in range(len(planes)):
         for j in range(i + 1, len(planes)):
@@ -88,8 +116,17 @@ def plane_edge_voxels(box, planes: list, points, radius_m: float) -> torch.Tenso
                 edge |= near[i] & near[j]
     idx = np.nonzero(edge)[0]
     if len(idx):
-        d, _ = cKDTree(np.asarray(points, np.float64)).query(c[idx], distance_upper_bound=radius_m)
-        edge[idx[~np.isfinite(d)]] = False
+        edge[idx[~within(None, idx, radius_m)]] = False
+    if own:     # each side's own points within EDGE_SIDE_REACH radii (pixel rays meet a far wall 6-12 cm apart)
+        keep = np.zeros(len(c), bool)
+        for i in range(len(planes)):
+            for j in range(i + 1, len(planes)):
+                if abs(float(planes[i].normal @ planes[j].normal)) < 0.9:
+                    idx = np.nonzero(edge & near[i] & near[j] & ~keep)[0]
+                    if len(idx):
+                        r = EDGE_SIDE_REACH * radius_m
+                        keep[idx[within(i, idx, r) & within(j, idx, r)]] = True
+        edge &= keep
     return torch.from_numpy(edge.reshape(box.shape))
 
 

@@ -211,7 +211,7 @@ def test_the_voxels_along_a_rooms_concave_edges_keep_their_start_values(meas):
     surface = start.visible_surface(box)
     planes = room_planes(start.data, box, cfg.fast, surface)
     assert len(planes) >= 2
-    edge = plane_edge_voxels(box, planes, surface[0], 2.0 * box.voxel)
+    edge = plane_edge_voxels(box, planes, surface[0], 2.0 * box.voxel, surface[1])
     assert edge.any()
     frozen = edge.permute(2, 1, 0)[None, None]
     start.grid.raw.sum().backward()
@@ -235,6 +235,41 @@ def test_plane_edge_voxels_are_near_two_planes_and_a_measured_point():
               & (np.linalg.norm(c - seen[0], axis=-1) <= 0.16))
     assert got.any() and np.array_equal(got.numpy(), expect)
     assert not plane_edge_voxels(box, [floor, parallel], seen, 0.16).any()     # parallel planes make no edge
+
+
+def test_a_curved_walls_facet_planes_crossing_the_wall_are_no_edge_but_a_corner_is():
+    """With the points' normals an edge needs points of each of its planes near it: two facet planes 30 degrees apart
+    of a curved wall pass through the wall where its normal is neither's (curved-wall's vertical rows of frozen bumps,
+    session 21), while a floor meeting a wall keeps its edge."""
+    from torch_recon.recon.fields import GridBox
+    from torch_recon.recon.freeze_masks import plane_edge_voxels
+    from torch_recon.recon.unobserved import Plane
+
+    box = GridBox([-1.0, 2.0, 0.0], [1.0, 4.0, 1.0], 40)                 # 5 cm voxels
+    r = 3.0                                                                 # a cylinder wall round (0, 0), radius 3
+    ang = np.radians(np.linspace(-30.0, 30.0, 241))
+    z = np.linspace(0.1, 0.9, 17)
+    a, zz = np.meshgrid(ang, z)
+    wall = np.stack([r * np.sin(a), r * np.cos(a), zz], -1).reshape(-1, 3)
+    wall_n = -np.stack([np.sin(a), np.cos(a), 0 * a], -1).reshape(-1, 3)    # facing the room's centre (the sensor)
+
+    def facet(deg):         # the secant plane through the wall between deg - 5 and deg + 5 degrees
+        n = -np.array([np.sin(np.radians(deg)), np.cos(np.radians(deg)), 0.0])
+        return Plane(n, float(n @ (r * np.cos(np.radians(5.0)) * -n)), 0.1)
+
+    facets = [facet(-15.0), facet(15.0)]                                  # 30 degrees apart: an "edge" by angle
+    old = plane_edge_voxels(box, facets, wall, 0.1)
+    new = plane_edge_voxels(box, facets, wall, 0.1, wall_n)
+    assert old.any() and not new.any()
+    floor = Plane(np.array([0.0, 0.0, 1.0]), 0.0, 0.5)
+    xs, ys = np.meshgrid(np.linspace(-0.9, 0.9, 37), np.linspace(2.1, 2.9, 17))
+    floor_pts = np.stack([xs, ys, 0 * xs], -1).reshape(-1, 3)
+    pts = np.concatenate([wall, floor_pts[np.hypot(floor_pts[:, 0], floor_pts[:, 1]) < r]])
+    nrm = np.concatenate([wall_n, np.tile([0.0, 0.0, 1.0], (len(pts) - len(wall), 1))])
+    corner = plane_edge_voxels(box, [floor, facet(0.0)], pts, 0.1, nrm)
+    plain = plane_edge_voxels(box, [floor, facet(0.0)], pts, 0.1)
+    middle = (box.centres()[..., 0].abs() < 0.3) & plain           # where the facet is the wall: the whole edge
+    assert middle.any() and torch.equal(corner & middle, middle) and not (corner & ~plain).any()
 
 
 @pytest.mark.parametrize("value", ["-1", "9", "nan"])
