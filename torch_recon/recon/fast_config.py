@@ -219,7 +219,9 @@ class FastConfig:
     freeze_plane_edges_voxels: float = 2.0  # > 0: voxels within this many voxels of two bounding planes (a room's
                                       # concave edge) and of a measured point keep their start value: with exact
                                       # ranges at the edge (`preprocess.return_centroid_fraction`) training specked
-                                      # the 3 cm grid's rounded edge 5-10 mm (session 19); 0: off
+                                      # the 3 cm grid's rounded edge 5-10 mm (session 19); each of the two planes
+                                      # needs its own points near the voxel (freeze_masks.plane_edge_voxels: a curved
+                                      # wall's facet planes crossing the wall froze a dotted line, session 21); 0: off
     thin_part_half_width_voxels: float = 0.0  # > 0: those voxels start this far inside the surface (a part thinner
                                       # than a voxel); 0: fully occupied. thin-structures 0.3: start better,
                                       # trained worse (F@2cm table 0.792 -> 0.775; training erodes it)
