@@ -112,21 +112,15 @@ def plane_edge_voxels(box, planes: list, points, radius_m: float, normals=None) 
     edge = np.zeros(len(c), bool)
     for i in range(len(planes)):
         for j in range(i + 1, len(planes)):
-            if abs(float(planes[i].normal @ planes[j].normal)) < 0.9:
-                edge |= near[i] & near[j]
-    idx = np.nonzero(edge)[0]
-    if len(idx):
-        edge[idx[~within(None, idx, radius_m)]] = False
-    if own:     # each side's own points within EDGE_SIDE_REACH radii (pixel rays meet a far wall 6-12 cm apart)
-        keep = np.zeros(len(c), bool)
-        for i in range(len(planes)):
-            for j in range(i + 1, len(planes)):
-                if abs(float(planes[i].normal @ planes[j].normal)) < 0.9:
-                    idx = np.nonzero(edge & near[i] & near[j] & ~keep)[0]
-                    if len(idx):
-                        r = EDGE_SIDE_REACH * radius_m
-                        keep[idx[within(i, idx, r) & within(j, idx, r)]] = True
-        edge &= keep
+            if abs(float(planes[i].normal @ planes[j].normal)) >= 0.9:
+                continue
+            idx = np.nonzero(near[i] & near[j] & ~edge)[0]
+            if len(idx):
+                seen = within(None, idx, radius_m)
+                if own:     # each side's own points within EDGE_SIDE_REACH radii (pixel rays meet a far wall 6-12 cm apart)
+                    reach = EDGE_SIDE_REACH * radius_m
+                    seen &= within(i, idx, reach) & within(j, idx, reach)
+                edge[idx[seen]] = True
     return torch.from_numpy(edge.reshape(box.shape))
 
 
