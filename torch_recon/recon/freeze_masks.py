@@ -85,7 +85,7 @@ def plane_edge_voxels(box, planes: list, points, radius_m: float, normals=None) 
     (`unobserved.Plane`: a concave edge of the room) and of the measured `points` (N, 3): the edge is seen there.
     With `normals` (N, 3, the points' image normals) the edge needs points of each of its two planes within
     radius_m (`EDGE_SIDE_NORMAL_DEG`): without that, the lines where a curved wall's facet planes cross the wall
-    counted as edges, and their frozen voxels kept the start field's bumps in vertical rows (curved-wall, session 21)."""
+    counted as edges, and their frozen voxels kept the start field's bumps in a dotted line (curved-wall, s. 21)."""
     from scipy.spatial import cKDTree
     out = torch.zeros(box.shape, dtype=torch.bool)
     if len(planes) < 2 or len(points) == 0:
@@ -117,7 +117,7 @@ def plane_edge_voxels(box, planes: list, points, radius_m: float, normals=None) 
             idx = np.nonzero(near[i] & near[j] & ~edge)[0]
             if len(idx):
                 seen = within(None, idx, radius_m)
-                if own:     # each side's own points within EDGE_SIDE_REACH radii (pixel rays meet a far wall 6-12 cm apart)
+                if own:     # each side's own points, EDGE_SIDE_REACH radii (pixel rays meet a far wall 6-12 cm apart)
                     reach = EDGE_SIDE_REACH * radius_m
                     seen &= within(i, idx, reach) & within(j, idx, reach)
                 edge[idx[seen]] = True

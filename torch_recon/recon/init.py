@@ -265,7 +265,8 @@ def initial_grid(data: RayData, box: GridBox, cfg, secondary_offset_m: float = 0
     if sd is not None:
         # a voxel the sensor saw through lies in front of every measured surface: a face's plane, extended past
         # the object's silhouette, must not fill it (at 512 px it fattened resolved legs and chair backs)
-        near = (torch.isfinite(sd) & ((label != LIT_FREE) | (sd <= 0.5 * box.voxel)) & ((label != CAMERA_FREE) | (sd <= 0))
+        near = (torch.isfinite(sd) & ((label != LIT_FREE) | (sd <= 0.5 * box.voxel))
+                & ((label != CAMERA_FREE) | (sd <= 0))
                 & ((label != RESTORED) | _blocker_on_measured_plane(box, sd, shell, cfg.surface_plane_blocker_voxels))
                 & (label != NEAREST))
         if cfg.surface_hidden_hull_voxels > 0:

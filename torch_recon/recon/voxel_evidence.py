@@ -262,6 +262,7 @@ def configured_evidence_grid(data: RayData, box: GridBox, cfg, secondary_offset_
         restored = label == RESTORED
         seen = seen_through(data, box.centres()[restored.to(box.bbox_min.device)],
                             cfg.seen_through_voxels * box.voxel, cfg.nearest_free).to(label.device)
-        label[restored] = torch.where(seen, torch.tensor(3, dtype=label.dtype, device=label.device), label[restored])
+        lit_free = torch.tensor(LIT_FREE, dtype=label.dtype, device=label.device)
+        label[restored] = torch.where(seen, lit_free, label[restored])
     return evidence, shadow_count
 
